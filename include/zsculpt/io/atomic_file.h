@@ -1,0 +1,25 @@
+#pragma once
+// Every file zsculpt writes goes through here: written to a temporary name in the same
+// folder, flushed to disk, then renamed over the target, so a crash or a kill during a save
+// leaves either the old file or the new one, never a half-written one.
+
+#include <functional>
+#include <ostream>
+#include <string>
+
+namespace zsculpt::io {
+
+/// Calls `write` with a stream to a temporary file next to `path`, then fsyncs and renames
+/// it to `path`. On any failure the temporary file is removed, `path` is untouched, and
+/// IOError "<path>: <reason>" is thrown.
+void writeFileAtomically(const std::string& path, const std::function<void(std::ostream&)>& write);
+
+/// Same for a file produced by a library that writes to a path itself (assimp, stb):
+/// `writeTo` receives the temporary path to write.
+void writeFileAtomicallyVia(const std::string& path,
+                            const std::function<void(const std::string& temporaryPath)>& writeTo);
+
+/// Throws IOError "<dir>: <reason>" unless `dir` exists (or can be created) and is writable.
+void ensureWritableDirectory(const std::string& dir);
+
+}  // namespace zsculpt::io

@@ -1,0 +1,119 @@
+#pragma once
+// The z-domain stepper (paper section 4) and the baselines it is compared with.
+// docs/solver.md derives each scheme and tabulates their measured behaviour.
+//
+//   paper     Equation 3 as printed: R += H' V + H A, V = X' V + X A, with A = M^-1 F_tot
+//             the total acceleration at the start of the step, H.. X' Taylor-truncated
+//             after Omega^4. Reproduces the paper's figures; dissipates or gains energy
+//             with rest-length springs and kills rotation (solver-findings.md).
+//   default   What users get. Velocity Verlet whose total acceleration is filtered by
+//             Phi = 2 H / T^2 truncated after Omega^2 (= I - T^2 Omega^2 / 12), with the
+//             damping of G applied exactly in two half steps. Rest shape is an equilibrium,
+//             linear momentum is exact, energy has no secular drift, and per mode the
+//             amplification's trace is twice H'' (cos Omega T truncated after Omega^4) with
+//             determinant 1, so it is stable exactly up to (omega T)^2 = 12: equation 5.
+//   exact     The exact z-domain (modal) solution of the linear system M r'' + D r' + K r =
+//             F, by a dense eigendecomposition; what K does not capture (rest lengths, angle
+//             springs, loads) is held constant over the step. The tests' oracle.
+//   symplectic-euler, implicit-euler (Baraff-Witkin, one linearised solve per step): the
+//             baselines users would otherwise pick.
+//
+// External forces are held constant over a step (zero-order hold, as the z-transform of
+// sampled forces assumes). No allocation per step.
+
+#include <Eigen/Dense>
+#include <Eigen/SparseCholesky>
+#include <memory>
+#include <span>
+#include <string_view>
+
+#include "zsculpt/physics/forces.h"
+#include "zsculpt/physics/matrices.h"
+#include "zsculpt/physics/properties.h"
+
+namespace zsculpt {
+
+enum class Scheme { Default, Paper, Exact, SymplecticEuler, ImplicitEuler };
+
+std::string_view schemeName(Scheme scheme);
+/// Throws InvalidInputError naming the unknown scheme and listing the valid ones.
+Scheme schemeFromName(std::string_view name);
+
+/// The largest stable period of a scheme for these matrices, from the largest eigenvalue
+/// lambda_0 of Omega^2 (infinite for exact and implicit-euler): sqrt(12 / lambda_0) for
+/// default and paper, sqrt(4 / lambda_0) for symplectic-euler.
+double stablePeriodLimit(Scheme scheme, double largestEigenvalue);
+
+struct StepperOptions {
+  /// Paper scheme: multiply by the stored two-ring matrices H, H', X, X' instead of
+  /// applying their polynomials in Omega^2 (same result; see bench for which is faster).
+  bool storedMatrices = false;
+  /// Exact scheme: refuse models larger than this (dense eigendecomposition).
+  Index exactMaxVertices = 4000;
+};
+
+class Stepper {
+ public:
+  /// Builds the matrices for `model` (kept by reference: it must outlive the stepper, and
+  /// property edits must be followed by propertiesChanged()).
+  Stepper(const Model& model, Scheme scheme, double period, const StepperOptions& options = {});
+  ~Stepper();
+  Stepper(const Stepper&) = delete;
+  Stepper& operator=(const Stepper&) = delete;
+
+  /// Advances `state` by one period under `external` forces (N x 3, held over the step) and
+  /// gravity. `elasticShare` (optional, N) scales each vertex's total force before it
+  /// reaches the elastic stepper (section 4.3, sigma_i); empty means 1.
+  void step(State& state, const Points& external, std::span<const double> elasticShare = {});
+
+  /// The properties of these vertices (or of their edges and angles) changed: update the
+  /// matrices' rows locally and drop cached forces.
+  void propertiesChanged(std::span<const Index> vertices);
+  /// Rebuild everything (a global edit).
+  void rebuild();
+  /// Cached internal forces are stale (the state was changed from outside).
+  void invalidate() { cacheValid_ = false; }
+
+  [[nodiscard]] Scheme scheme() const { return scheme_; }
+  [[nodiscard]] double period() const { return period_; }
+  [[nodiscard]] const SystemMatrices& system() const { return system_; }
+  /// Paper scheme only (null otherwise).
+  [[nodiscard]] const TransformationMatrices* transformation() const {
+    return transformation_.get();
+  }
+  /// Total force (internal + external + gravity) at the start of the last step.
+  [[nodiscard]] const Points& lastTotalForce() const { return totalForce_; }
+
+ private:
+  void computeAcceleration(const Points& position, const Points& external,
+                           std::span<const double> elasticShare, bool reuseInternal);
+  void stepDefault(State& s, const Points& external, std::span<const double> share);
+  void stepPaper(State& s, const Points& external, std::span<const double> share);
+  void stepExact(State& s, const Points& external, std::span<const double> share);
+  void stepSymplecticEuler(State& s, const Points& external, std::span<const double> share);
+  void stepImplicitEuler(State& s, const Points& external, std::span<const double> share);
+  void setUpExact();
+
+  const Model& model_;
+  Scheme scheme_;
+  double period_;
+  StepperOptions options_;
+  SystemMatrices system_;
+  std::unique_ptr<TransformationMatrices> transformation_;
+
+  // Work buffers (N x 3), allocated once.
+  Points internal_, totalForce_, acceleration_, work1_, work2_, work3_, work4_;
+  bool cacheValid_ = false;
+
+  // Exact scheme: Omega^2's symmetric form = Q diag(w^2) Q^T; per-mode 2 x 3 propagators.
+  Eigen::MatrixXd modes_;
+  Eigen::MatrixXd propagator_;  // N x 6: phi11 phi12 gamma1 phi21 phi22 gamma2
+  VectorX sqrtMass_;
+  Eigen::MatrixXd modal1_, modal2_, modal3_;
+
+  // Implicit Euler: A = M + h D - h^2 J (3N x 3N).
+  struct Implicit;
+  std::unique_ptr<Implicit> implicit_;
+};
+
+}  // namespace zsculpt

@@ -1,0 +1,132 @@
+#pragma once
+// Smooth surface from a modified Doo-Sabin subdivision that interpolates the mesh
+// (paper section 3 "Smoothing", Figure 5). See docs/subdivision.md.
+//
+// The composition of L levels is one sparse matrix S (refined vertices x control
+// vertices), built once per topology: a frame's refresh is one sparse product
+// refined = S * control, with no allocation.
+//
+// One level (docs/subdivision.md has the full rule):
+//   - every face corner gives a refined vertex (Doo-Sabin face-point masks); every face
+//     gives an F-face, every interior edge an E-face (quad), every vertex a V-face;
+//   - feature edges (boundary, non-manifold, or two faces of opposite winding) follow a
+//     Chaikin curve rule and keep their faces' E-faces, so open surfaces reach their
+//     boundary; feature vertices that are not regular curve points (curve ends, junctions,
+//     one-face boundary corners) keep a copy of themselves;
+//   - curves (edges, no faces) use the same curve rule; vertices on no face of a surface
+//     (a solid's interior, isolated vertices) are carried unchanged.
+// With `interpolate`, the first level translates each vertex's V-face (or boundary
+// segment) so that its centroid sits on the vertex; later levels keep such centroids, so
+// the limit passes through every control vertex.
+
+#include <Eigen/SparseCore>
+#include <array>
+#include <cstdint>
+#include <vector>
+
+#include "zsculpt/core/types.h"
+#include "zsculpt/mesh/mesh.h"
+
+namespace zsculpt {
+
+using SparseRowMatrix = Eigen::SparseMatrix<double, Eigen::RowMajor, Index>;
+
+struct SubdivisionOptions {
+  int levels = 2;
+  /// Modified scheme: the limit surface passes through the control vertices. False gives
+  /// classic Doo-Sabin (CGAL's masks), which does not interpolate.
+  bool interpolate = true;
+  /// Per-vertex masses (optional, size = control vertices): physics-dependent weights so
+  /// that total mass and linear momentum carried to the refined mesh equal the original.
+  /// Without masses the weights are the classic (geometric) masks.
+  const VectorX* mass = nullptr;
+};
+
+/// How a control vertex is reached at the last level: the (mass-weighted) centroid of a
+/// refined face, the (mass-weighted) midpoint of a refined feature segment, or a refined
+/// vertex that copies it. With `interpolate` that point is the control vertex itself.
+enum class AnchorKind : std::uint8_t { Face, Segment, Vertex };
+struct InterpolationAnchor {
+  AnchorKind kind = AnchorKind::Vertex;
+  Index a = -1;  ///< refined face (Face), first end (Segment) or refined vertex (Vertex)
+  Index b = -1;  ///< second end (Segment)
+};
+
+class SubdivisionStencil {
+ public:
+  SubdivisionStencil() = default;
+  /// Builds the stencil of `options.levels` levels (0 to 10) for `control`'s topology.
+  /// Throws InvalidInputError for a level count out of range or too large a result, and
+  /// for masses of the wrong size, non-finite or not positive.
+  SubdivisionStencil(const Mesh& control, const SubdivisionOptions& options);
+
+  [[nodiscard]] int levels() const;
+  [[nodiscard]] Index numControlVertices() const;
+  [[nodiscard]] Index numRefinedVertices() const;
+  /// Refined faces (CSR; polygons). Triangulate with a fan for drawing.
+  [[nodiscard]] const CsrIndex& refinedFaces() const;
+  /// Refined edges for curves (a refined polyline) and wireframes.
+  [[nodiscard]] const std::vector<std::array<Index, 2>>& refinedEdges() const;
+  /// One-ring of each refined vertex through refinedEdges() (for bestPlaneNormals).
+  [[nodiscard]] const CsrIndex& refinedVertexNeighbors() const;
+  [[nodiscard]] const SparseRowMatrix& matrix() const;
+
+  /// refined = S * control. `refined` must already have numRefinedVertices() rows: no
+  /// allocation.
+  void apply(const Points& control, Points& refined) const;
+  /// Per-vertex scalar (e.g. a painted property for colouring): refined = S * control.
+  void apply(const VectorX& control, VectorX& refined) const;
+
+  /// For each control vertex, the refined vertex that converges to it (interpolation).
+  [[nodiscard]] const std::vector<Index>& controlToRefined() const;
+  /// For each control vertex, the refined face / segment / vertex whose (mass-weighted)
+  /// centre is the point of the last level that interpolates it.
+  [[nodiscard]] const std::vector<InterpolationAnchor>& anchors() const;
+
+  /// Mass carried to the refined vertices: refinedMass = T * controlMass, where T depends
+  /// on the topology only and every column of T sums to 1 (total mass is kept). With the
+  /// masses the stencil was built with, sum_r m'_r (S v)_r = sum_i m_i v_i for every
+  /// velocity field v (linear momentum is kept). `refinedMass` is resized.
+  void refinedMass(const VectorX& controlMass, VectorX& refinedMass) const;
+  [[nodiscard]] VectorX refinedMass(const VectorX& controlMass) const;
+
+  /// Best-plane normals of refined positions (bestPlaneNormals on the refined topology).
+  /// `normals` must have numRefinedVertices() rows: no allocation.
+  void refinedNormals(const Points& refined, Points& normals) const;
+
+ private:
+  int levels_ = 0;
+  Index numControl_ = 0;
+  SparseRowMatrix matrix_;
+  std::vector<SparseRowMatrix> massTransfer_;  // one per level, applied in order
+  CsrIndex refinedFaces_;
+  std::vector<std::array<Index, 2>> refinedEdges_;
+  CsrIndex refinedNeighbors_;
+  std::vector<Index> controlToRefined_;
+  std::vector<InterpolationAnchor> anchors_;
+};
+
+/// One-call form: the refined mesh at the control mesh's current positions.
+Mesh subdivide(const Mesh& control, const SubdivisionOptions& options);
+
+/// Normals by a best-plane (least-squares) fit of each vertex's one-ring in `faces`
+/// (paper section 3), oriented consistently with the faces' winding. `normals` must have
+/// positions.rows() rows; no allocation.
+void bestPlaneNormals(const CsrIndex& faces, const CsrIndex& vertexNeighbors,
+                      const Points& positions, Points& normals);
+
+/// Distance from each control vertex to the point of the refined surface that
+/// interpolates it: the nearest point of its anchor face (fan-triangulated from corner 0,
+/// as drawn), of its anchor segment, or its anchor vertex. `errors` is resized.
+void interpolationErrors(const SubdivisionStencil& stencil, const Points& control,
+                         const Points& refined, VectorX& errors);
+/// Largest of interpolationErrors: the `max_interpolation_error` of `zsculpt subdivide`.
+double maxInterpolationError(const SubdivisionStencil& stencil, const Points& control,
+                             const Points& refined);
+/// Largest distance from a control vertex to the refined vertex controlToRefined() gives
+/// (falls like 2^-levels: Doo-Sabin is a dual scheme, its vertices only approach the
+/// surface point).
+double maxVertexInterpolationError(const SubdivisionStencil& stencil, const Points& control,
+                                   const Points& refined);
+
+}  // namespace zsculpt

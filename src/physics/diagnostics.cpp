@@ -1,0 +1,64 @@
+#include "zsculpt/physics/diagnostics.h"
+
+namespace zsculpt {
+
+Diagnostics measureKinematics(const VectorX& mass, const State& state) {
+  Diagnostics d;
+  const Index n = static_cast<Index>(state.position.rows());
+  Vec3 weighted = Vec3::Zero();
+  for (Index i = 0; i < n; ++i) {
+    const Vec3 v = state.velocity.row(i).transpose();
+    d.kinetic += 0.5 * mass[i] * v.squaredNorm();
+    d.momentum += mass[i] * v;
+    weighted += mass[i] * state.position.row(i).transpose();
+    d.totalMass += mass[i];
+  }
+  d.centreOfMass = weighted / d.totalMass;
+  for (Index i = 0; i < n; ++i) {
+    const Vec3 r = state.position.row(i).transpose() - d.centreOfMass;
+    d.angularMomentum += mass[i] * r.cross(Vec3(state.velocity.row(i).transpose()));
+  }
+  return d;
+}
+
+Diagnostics measure(const Model& model, const State& state) {
+  Diagnostics d = measureKinematics(model.properties.mass, state);
+  d.potential = potentialEnergy(model, state.position);
+  d.partial = d.total() / static_cast<double>(model.mesh.numVertices());
+  return d;
+}
+
+}  // namespace zsculpt
+
+#include <random>
+
+namespace zsculpt {
+
+void randomVelocity(const VectorX& mass, double amplitude, unsigned seed, Points& velocity) {
+  const Index n = static_cast<Index>(mass.size());
+  velocity.resize(n, 3);
+  // A fixed generator and our own Box-Muller: the same velocities on every platform.
+  std::mt19937_64 rng(seed);
+  auto uniform = [&]() { return (static_cast<double>(rng() >> 11) + 0.5) * 0x1.0p-53; };
+  for (Index i = 0; i < n; ++i)
+    for (int c = 0; c < 3; ++c)
+      velocity(i, c) = std::sqrt(-2.0 * std::log(uniform())) * std::cos(6.283185307179586 * uniform());
+  Eigen::RowVector3d momentum = Eigen::RowVector3d::Zero();
+  for (Index i = 0; i < n; ++i) momentum += mass[i] * velocity.row(i);
+  const Eigen::RowVector3d drift = momentum / mass.sum();
+  for (Index i = 0; i < n; ++i) velocity.row(i) -= drift;
+  const double rms = std::sqrt(velocity.squaredNorm() / std::max<Index>(n, 1));
+  if (rms > 0.0) velocity *= amplitude / rms;
+}
+
+void spinVelocity(const VectorX& mass, const Points& position, const Vec3& omega,
+                  Points& velocity) {
+  Vec3 centre = Vec3::Zero();
+  for (Index i = 0; i < position.rows(); ++i) centre += mass[i] * position.row(i).transpose();
+  centre /= mass.sum();
+  velocity.resize(position.rows(), 3);
+  for (Index i = 0; i < position.rows(); ++i)
+    velocity.row(i) = omega.cross(Vec3(position.row(i).transpose() - centre)).transpose();
+}
+
+}  // namespace zsculpt

@@ -1,0 +1,366 @@
+// Physics module: forces, matrices, critical period, schemes, energy and momentum, on the
+// paper's models (Table 1).
+
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <numbers>
+
+#include "zsculpt/mesh/builtin.h"
+#include "zsculpt/physics/diagnostics.h"
+#include "zsculpt/physics/forces.h"
+#include "zsculpt/physics/matrices.h"
+#include "zsculpt/physics/stepper.h"
+
+using namespace zsculpt;
+
+namespace {
+
+Model dodecahedron(double restLengthScale = 1.0) {
+  UniformProperties u;
+  u.mass = 0.5;
+  u.stiffness = 5.0;
+  u.restLengthScale = restLengthScale;
+  return Model::fromMesh(makeDodecahedron(), u);
+}
+
+Model withAngles(Mesh mesh, double angular, double mass = 0.5, double stiffness = 5.0) {
+  UniformProperties u;
+  u.mass = mass;
+  u.stiffness = stiffness;
+  u.angularStiffness = angular;
+  return Model::fromMesh(std::move(mesh), u);
+}
+
+struct RunResult {
+  bool finite = true;
+  double energyDrift = 0.0;       // mean of last 10 % over first 10 %, minus 1
+  double maxMomentumDrift = 0.0;  // largest |p - p0|
+  double maxAngularDrift = 0.0;   // largest |L - L0| / |L0|
+  double meanAngularDrift = 0.0;  // |mean L of last 10 % - L0| / |L0|
+  State state;
+};
+
+RunResult simulate(const Model& model, Scheme scheme, double dt, long steps, State state) {
+  Stepper stepper(model, scheme, dt);
+  const Points external = Points::Zero(model.mesh.numVertices(), 3);
+  const Diagnostics d0 = measure(model, state);
+  RunResult run;
+  const long window = std::max(1L, steps / 10);
+  double first = 0.0, last = 0.0;
+  Vec3 lastL = Vec3::Zero();
+  for (long k = 0; k < steps; ++k) {
+    stepper.step(state, external);
+    const Diagnostics d = measure(model, state);
+    if (!std::isfinite(d.total())) {
+      run.finite = false;
+      break;
+    }
+    if (k < window) first += d.total();
+    if (k >= steps - window) {
+      last += d.total();
+      lastL += d.angularMomentum;
+    }
+    run.maxMomentumDrift = std::max(run.maxMomentumDrift, (d.momentum - d0.momentum).norm());
+    if (d0.angularMomentum.norm() > 0)
+      run.maxAngularDrift = std::max(run.maxAngularDrift, (d.angularMomentum - d0.angularMomentum).norm() /
+                                                              d0.angularMomentum.norm());
+  }
+  run.energyDrift = last / first - 1.0;
+  if (d0.angularMomentum.norm() > 0)
+    run.meanAngularDrift =
+        (lastL / static_cast<double>(window) - d0.angularMomentum).norm() / d0.angularMomentum.norm();
+  run.state = state;
+  return run;
+}
+
+State perturbed(const Model& model, double amplitude, unsigned seed) {
+  State s = State::atRest(model.mesh);
+  randomVelocity(model.properties.mass, amplitude, seed, s.velocity);
+  return s;
+}
+
+}  // namespace
+
+// ---- forces ------------------------------------------------------------------------------
+
+TEST(Forces, RadialSpringIsMinusGradientOfItsEnergy) {
+  const Vec3 ri(0.3, -0.2, 0.9), rj(1.1, 0.4, 0.2);
+  Vec3 f;
+  radialSpringForce(ri, rj, 3.0, 0.7, f);
+  const double h = 1e-6;
+  for (int c = 0; c < 3; ++c) {
+    Vec3 p = ri, m = ri, dummy;
+    p[c] += h;
+    m[c] -= h;
+    const double grad = (radialSpringForce(p, rj, 3.0, 0.7, dummy) -
+                         radialSpringForce(m, rj, 3.0, 0.7, dummy)) / (2 * h);
+    EXPECT_NEAR(f[c], -grad, 1e-7);
+  }
+}
+
+TEST(Forces, ZeroRestLengthSpringIsLinear) {
+  Vec3 f;
+  radialSpringForce(Vec3(1, 2, 3), Vec3(0, 0, 1), 2.0, 0.0, f);
+  EXPECT_TRUE(f.isApprox(Vec3(-2, -4, -4)));
+}
+
+TEST(Forces, AngleSpringIsMinusGradientWithZeroNetForceAndTorque) {
+  const Vec3 c(0.1, 0.2, -0.1), a(1.2, 0.1, 0.3), b(-0.2, 0.9, 0.5);
+  const double kappa = 1.7, rest = 1.1;
+  Vec3 fc, fa, fb;
+  angleSpringForce(c, a, b, kappa, rest, fc, fa, fb);
+  EXPECT_LT((fc + fa + fb).norm(), 1e-13);
+  EXPECT_LT((c.cross(fc) + a.cross(fa) + b.cross(fb)).norm(), 1e-13);
+  const double h = 1e-6;
+  Vec3 x, y, z;
+  for (int k = 0; k < 3; ++k) {
+    Vec3 p = a, m = a;
+    p[k] += h;
+    m[k] -= h;
+    const double grad = (angleSpringForce(c, p, b, kappa, rest, x, y, z) -
+                         angleSpringForce(c, m, b, kappa, rest, x, y, z)) / (2 * h);
+    EXPECT_NEAR(fa[k], -grad, 1e-6);
+  }
+}
+
+TEST(Forces, AngleSpringStaysFiniteAtZeroAndPi) {
+  Vec3 fc, fa, fb;
+  for (const Vec3& b : {Vec3(2, 0, 0), Vec3(-1, 0, 0), Vec3(-1, 1e-15, 0)}) {
+    const double e = angleSpringForce(Vec3::Zero(), Vec3(1, 0, 0), b, 2.0, 1.0, fc, fa, fb);
+    EXPECT_TRUE(std::isfinite(e));
+    EXPECT_TRUE(fa.allFinite() && fb.allFinite() && fc.allFinite());
+    EXPECT_LT((fa + fb + fc).norm(), 1e-12);
+    // Magnitude kappa |theta - theta0| / d.
+    const double theta = angleAt(Vec3::Zero(), Vec3(1, 0, 0), b);
+    EXPECT_NEAR(fa.norm(), 2.0 * std::abs(theta - 1.0) / 1.0, 1e-9);
+  }
+  // At rest angle pi, a straight configuration carries no force.
+  angleSpringForce(Vec3::Zero(), Vec3(1, 0, 0), Vec3(-1, 0, 0), 2.0, std::numbers::pi, fc, fa, fb);
+  EXPECT_LT(fa.norm() + fb.norm() + fc.norm(), 1e-12);
+}
+
+TEST(Forces, TorqueBecomesForcesWithZeroNetForceAndTheGivenTorque) {
+  const Vec3 centre(0.5, 0.5, 0.0);
+  const std::vector<Vec3> arms{{1.5, 0.5, 0}, {0.5, 1.5, 0.1}, {-0.5, 0.4, 0}, {0.6, -0.5, -0.2}};
+  std::vector<Vec3> forces(arms.size());
+  Vec3 onCentre;
+  const Vec3 torque(0.3, -1.3, 0.7);
+  const Vec3 applied = torqueToForces(centre, arms, torque, forces, onCentre);
+  Vec3 net = onCentre, moment = centre.cross(onCentre);
+  for (size_t k = 0; k < arms.size(); ++k) {
+    net += forces[k];
+    moment += arms[k].cross(forces[k]);
+  }
+  EXPECT_LT(net.norm(), 1e-14);
+  EXPECT_LT((moment - torque).norm(), 1e-12);
+  EXPECT_LT((applied - torque).norm(), 1e-12);
+}
+
+TEST(Forces, TorqueAboutACurveDropsTheAxialPart) {
+  const std::vector<Vec3> arms{{1, 0, 0}, {-1, 0, 0}};
+  std::vector<Vec3> forces(2);
+  Vec3 onCentre;
+  const Vec3 applied = torqueToForces(Vec3::Zero(), arms, Vec3(2, 0, 1), forces, onCentre);
+  EXPECT_NEAR(applied.x(), 0.0, 1e-14);
+  EXPECT_NEAR(applied.z(), 1.0, 1e-12);
+}
+
+TEST(Forces, InternalForcesOfAModelHaveZeroNetForceAndTorque) {
+  Model model = withAngles(makeTorus(8, 6), 0.8);
+  Points x = model.mesh.positions();
+  Points v;
+  randomVelocity(model.properties.mass, 0.2, 3, v);
+  x += v;  // a deformed shape
+  Points f = Points::Zero(x.rows(), 3);
+  const PotentialEnergy e = accumulateInternalForces(model, x, f);
+  EXPECT_GT(e.radial, 0.0);
+  EXPECT_GT(e.angular, 0.0);
+  Vec3 net = Vec3::Zero(), moment = Vec3::Zero();
+  for (Index i = 0; i < x.rows(); ++i) {
+    net += f.row(i).transpose();
+    moment += Vec3(x.row(i).transpose()).cross(Vec3(f.row(i).transpose()));
+  }
+  EXPECT_LT(net.norm(), 1e-11);
+  EXPECT_LT(moment.norm(), 1e-10);
+  EXPECT_NEAR(e.total(), potentialEnergy(model, x).radial + potentialEnergy(model, x).angular, 1e-12);
+}
+
+// ---- matrices and the critical period ----------------------------------------------------
+
+TEST(Matrices, StiffnessIsASymmetricLaplacian) {
+  Model model = withAngles(makeGrid(6), 0.5);
+  model.properties.stiffness[7] = 40.0;
+  const SystemMatrices m(model);
+  const SparseRowMatrix& k = m.stiffness();
+  EXPECT_LT(maxAbsDifference(k, SparseRowMatrix(k.transpose())), 1e-14);
+  const VectorX rowSums = k * VectorX::Ones(k.cols());
+  EXPECT_LT(rowSums.cwiseAbs().maxCoeff(), 1e-12);
+  // Off-diagonal entries are minus the edge stiffness, harmonic mean of the ends' kappas
+  // plus the angle bound.
+  EXPECT_LT(k.coeff(7, 8), -edgeStiffness(40.0, 5.0));
+}
+
+TEST(Matrices, DodecahedronCriticalPeriodMatchesTable1) {
+  const Model model = dodecahedron();
+  const SystemMatrices m(model);
+  // Equation 5: sqrt(6 / max K_ii / mu_i) = sqrt(6 / 30); Table 1 prints 0.448.
+  EXPECT_NEAR(criticalPeriod(m), std::sqrt(0.2), 1e-12);
+  EXPECT_NEAR(criticalPeriod(m), 0.4472, 5e-5);
+  // lambda_0 = (3 + sqrt 5) kappa / mu = 52.36, inside the Gerschgorin bound 60.
+  EXPECT_NEAR(largestEigenvalue(m), (3 + std::sqrt(5.0)) * 5.0 / 0.5, 1e-9);
+}
+
+TEST(Matrices, LanczosAgreesWithDenseOnALargeModel) {
+  const Model model = withAngles(makeTorus(40, 20), 0.0);
+  const SystemMatrices m(model);
+  // 800 vertices: Lanczos path. A 40 x 20 torus Laplacian's top eigenvalue is known
+  // in closed form only approximately (geometry-independent: all kappa equal) = 4 + 4 = 8
+  // times kappa / mu for a periodic grid graph with even sizes.
+  EXPECT_NEAR(largestEigenvalue(m), 8.0 * 5.0 / 0.5, 1e-6);
+}
+
+TEST(Matrices, TransformationMatricesApproximateTheTrigonometricOnes) {
+  const Model model = dodecahedron();
+  const SystemMatrices m(model);
+  const double t = 0.05;
+  const TransformationMatrices tm(m, t);
+  const Eigen::MatrixXd o2 = Eigen::MatrixXd(m.omega2());
+  // Dense exact H'' = cos(Omega T) via the symmetric eigendecomposition.
+  const VectorX s = m.inverseMass().cwiseSqrt();
+  Eigen::SelfAdjointEigenSolver<Eigen::MatrixXd> eig(s.asDiagonal() * Eigen::MatrixXd(m.stiffness()) * s.asDiagonal());
+  VectorX c(eig.eigenvalues().size());
+  for (Index k = 0; k < c.size(); ++k) c[k] = std::cos(std::sqrt(std::max(0.0, eig.eigenvalues()[k])) * t);
+  const Eigen::MatrixXd cosine = s.cwiseInverse().asDiagonal() * eig.eigenvectors() * c.asDiagonal() *
+                                 eig.eigenvectors().transpose() * s.asDiagonal();
+  const double error = (Eigen::MatrixXd(tm.hSecond()) - cosine).cwiseAbs().maxCoeff();
+  // Truncation after Omega^4: the first dropped term is (omega T)^6 / 720.
+  const double lambda = eig.eigenvalues().maxCoeff();
+  EXPECT_LT(error, std::pow(lambda * t * t, 3) / 720.0 * 1.01);
+  EXPECT_GT(error, 0.0);
+}
+
+// ---- schemes -----------------------------------------------------------------------------
+
+TEST(Schemes, PaperSchemeStoredMatricesEqualPolynomials) {
+  const Model model = dodecahedron();
+  const double dt = 0.3 * criticalPeriod(SystemMatrices(model));
+  State a = perturbed(model, 0.05, 1), b = a;
+  StepperOptions stored;
+  stored.storedMatrices = true;
+  Stepper s1(model, Scheme::Paper, dt), s2(model, Scheme::Paper, dt, stored);
+  const Points ext = Points::Zero(20, 3);
+  for (int k = 0; k < 50; ++k) {
+    s1.step(a, ext);
+    s2.step(b, ext);
+  }
+  EXPECT_LT((a.position - b.position).cwiseAbs().maxCoeff(), 1e-12);
+  EXPECT_LT((a.velocity - b.velocity).cwiseAbs().maxCoeff(), 1e-12);
+}
+
+TEST(Schemes, ExactSchemeIsIndependentOfTheStepForLinearSprings) {
+  const Model model = dodecahedron(0.0);
+  const State s0 = perturbed(model, 0.1, 2);
+  const double t = 2.0;
+  const RunResult coarse = simulate(model, Scheme::Exact, t / 10, 10, s0);
+  const RunResult fine = simulate(model, Scheme::Exact, t / 40, 40, s0);
+  EXPECT_LT((coarse.state.position - fine.state.position).cwiseAbs().maxCoeff(), 1e-11);
+}
+
+TEST(Schemes, DefaultAndPaperConvergeToExactAtTheirPredictedOrder) {
+  // Linear springs (rest length 0): the model equation 2 is exactly linear.
+  const Model model = dodecahedron(0.0);
+  const State s0 = perturbed(model, 0.1, 4);
+  const double tmax = criticalPeriod(SystemMatrices(model));
+  const double horizon = 40 * 0.2 * tmax;
+  const RunResult reference = simulate(model, Scheme::Exact, horizon / 40, 40, s0);
+  auto error = [&](Scheme scheme, long steps) {
+    const RunResult r = simulate(model, scheme, horizon / steps, steps, s0);
+    return (r.state.position - reference.state.position).cwiseAbs().maxCoeff();
+  };
+  // Default: velocity Verlet with a filter O(T^2) away from 1: second order.
+  const double d1 = error(Scheme::Default, 80), d2 = error(Scheme::Default, 160);
+  EXPECT_NEAR(d1 / d2, 4.0, 0.3);
+  // Paper, linear and undamped: exact but for the Taylor truncation after Omega^4. The
+  // velocity map H'' = cos(Omega T) drops (Omega T)^6 / 720: local error O(T^6), fifth
+  // order globally.
+  const double p1 = error(Scheme::Paper, 80), p2 = error(Scheme::Paper, 160);
+  EXPECT_NEAR(std::log2(p1 / p2), 5.0, 0.3);
+}
+
+TEST(Schemes, LinearMomentumIsExactForEveryScheme) {
+  const Model model = withAngles(makeDodecahedron(), 0.3);
+  const double dt = 0.5 * criticalPeriod(SystemMatrices(model));
+  for (Scheme scheme : {Scheme::Default, Scheme::Paper, Scheme::Exact, Scheme::SymplecticEuler,
+                        Scheme::ImplicitEuler}) {
+    State s0 = perturbed(model, 0.1, 5);
+    s0.velocity.rowwise() += Eigen::RowVector3d(0.3, -0.1, 0.2);  // a drift to keep
+    const double p0 = measure(model, s0).momentum.norm();
+    const RunResult run = simulate(model, scheme, scheme == Scheme::SymplecticEuler ? dt / 2 : dt, 400, s0);
+    EXPECT_TRUE(run.finite) << schemeName(scheme);
+    EXPECT_LT(run.maxMomentumDrift, 1e-12 * p0 * 1e2) << schemeName(scheme);
+  }
+}
+
+TEST(Schemes, RestShapeIsAnEquilibriumOfTheDefaultScheme) {
+  Model model = withAngles(makeTorus(), 0.5);
+  State s = State::atRest(model.mesh);
+  const RunResult run = simulate(model, Scheme::Default, 0.9 * criticalPeriod(SystemMatrices(model)), 200, s);
+  EXPECT_LT((run.state.position - model.mesh.positions()).cwiseAbs().maxCoeff(), 1e-12);
+  EXPECT_LT(run.state.velocity.cwiseAbs().maxCoeff(), 1e-12);
+}
+
+TEST(Schemes, PaperSchemeDissipatesEnergyWithRestLengthSprings) {
+  // solver-findings.md: the literal equation 3 with rest-length springs loses energy.
+  const Model model = dodecahedron();
+  const double dt = 0.5 * criticalPeriod(SystemMatrices(model));
+  const RunResult run = simulate(model, Scheme::Paper, dt, 30000, perturbed(model, 0.05, 7));
+  EXPECT_TRUE(run.finite);
+  EXPECT_LT(run.energyDrift, -0.5);
+}
+
+TEST(Schemes, PaperSchemeKillsRotationAndDefaultKeepsIt) {
+  const Model model = dodecahedron();
+  const double dt = 0.3 * criticalPeriod(SystemMatrices(model));
+  State s = State::atRest(model.mesh);
+  spinVelocity(model.properties.mass, s.position, Vec3(0.1, 0.2, 0.3), s.velocity);
+  const RunResult paper = simulate(model, Scheme::Paper, dt, 2000, s);
+  const RunResult ours = simulate(model, Scheme::Default, dt, 2000, s);
+  EXPECT_GT(paper.meanAngularDrift, 0.5);
+  EXPECT_LT(ours.maxAngularDrift, 0.01);
+}
+
+class DefaultSchemeLongRun : public ::testing::TestWithParam<const char*> {};
+
+TEST_P(DefaultSchemeLongRun, EnergyAndAngularMomentumDoNotDriftAtNinetyPercentOfTmax) {
+  const std::string name = GetParam();
+  Model model = name == "dodecahedron" ? withAngles(makeDodecahedron(), 0.0)
+                : name == "torus"      ? withAngles(makeTorus(), 0.0, 0.1, 5.0)
+                                       : withAngles(makeGrid(), 0.5, 0.31, 5.16);
+  const double dt = 0.9 * criticalPeriod(SystemMatrices(model));
+  // A spin (so the angular momentum is well above rounding) plus random vibration.
+  State s = perturbed(model, 0.05, 11);
+  Points spin;
+  spinVelocity(model.properties.mass, s.position, Vec3(0.02, 0.03, 0.05), spin);
+  s.velocity += spin;
+  const RunResult run = simulate(model, Scheme::Default, dt, 100000, s);
+  EXPECT_TRUE(run.finite);
+  EXPECT_LT(std::abs(run.energyDrift), 0.01) << name;
+  EXPECT_LT(run.meanAngularDrift, 0.05) << name;
+}
+
+INSTANTIATE_TEST_SUITE_P(PaperModels, DefaultSchemeLongRun,
+                         ::testing::Values("dodecahedron", "torus", "grid"));
+
+TEST(Schemes, DefaultDivergesJustAboveTheTightPeriodAndNotBelow) {
+  const Model model = dodecahedron();
+  const SystemMatrices m(model);
+  const double tmax = criticalPeriod(m);
+  auto diverges = [&](double ratio) {
+    const RunResult r = simulate(model, Scheme::Default, ratio * tmax, 3000, perturbed(model, 0.05, 13));
+    return !r.finite || r.state.velocity.cwiseAbs().maxCoeff() > 1e3;
+  };
+  EXPECT_FALSE(diverges(1.0));
+  EXPECT_FALSE(diverges(1.06));
+  EXPECT_TRUE(diverges(1.09));
+}
