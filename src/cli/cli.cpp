@@ -8,33 +8,12 @@
 
 namespace zsculpt::cli {
 
-// Subcommands still being written link to these empty registrations.
-#define ZSCULPT_WEAK_COMMAND(name) \
-  [[gnu::weak]] void name(CLI::App&, CommandList&) {}
-ZSCULPT_WEAK_COMMAND(addInfoCommand)
-ZSCULPT_WEAK_COMMAND(addSimulateCommand)
-ZSCULPT_WEAK_COMMAND(addSubdivideCommand)
-ZSCULPT_WEAK_COMMAND(addRenderCommand)
-ZSCULPT_WEAK_COMMAND(addDemoCommand)
-ZSCULPT_WEAK_COMMAND(addReproduceCommand)
-ZSCULPT_WEAK_COMMAND(addBenchCommand)
-ZSCULPT_WEAK_COMMAND(addOpenCommand)
-ZSCULPT_WEAK_COMMAND(addReplayCommand)
-#undef ZSCULPT_WEAK_COMMAND
-
 int run(int argc, char** argv) {
   CLI::App app{"zsculpt: physics-based sculpting with the z-domain solver of Ray and Qin"};
   app.require_subcommand(0, 1);
   CommandList commands;
   addInfoCommand(app, commands);
   addSimulateCommand(app, commands);
-  addSubdivideCommand(app, commands);
-  addRenderCommand(app, commands);
-  addDemoCommand(app, commands);
-  addReproduceCommand(app, commands);
-  addBenchCommand(app, commands);
-  addOpenCommand(app, commands);
-  addReplayCommand(app, commands);
   try {
     app.parse(argc, argv);
   } catch (const CLI::CallForHelp& e) {

@@ -18,8 +18,8 @@ struct Command {
 
 using CommandList = std::vector<Command>;
 
-// One per subcommand of ../shared/notes/cli.md. A file that is not written yet simply
-// does not register (see the weak default in cli.cpp).
+// One per subcommand of ../shared/notes/cli.md, each defined in its cmd_<name>.cpp and
+// called from run() in cli.cpp.
 void addInfoCommand(CLI::App& root, CommandList& commands);
 void addSimulateCommand(CLI::App& root, CommandList& commands);
 void addSubdivideCommand(CLI::App& root, CommandList& commands);

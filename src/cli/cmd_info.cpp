@@ -1,0 +1,84 @@
+// zsculpt info MESH|SCENE [--json]: topology, properties and critical sampling period.
+
+#include <iostream>
+#include <sstream>
+
+#include "commands.h"
+#include "model_options.h"
+#include "zsculpt/physics/matrices.h"
+
+namespace zsculpt::cli {
+
+namespace {
+
+std::string vec(const Vec3& v) {
+  return "[" + jsonNumber(v.x()) + ", " + jsonNumber(v.y()) + ", " + jsonNumber(v.z()) + "]";
+}
+
+int runInfo(const ModelOptions& options, bool json) {
+  const LoadedModel loaded = options.load();
+  const Model& model = loaded.model;
+  const Mesh& mesh = model.mesh;
+  const BoundingBox box = mesh.boundingBox();
+  const SystemMatrices matrices(model);
+  const double tMax = criticalPeriod(matrices);
+  const double tTight = tightCriticalPeriod(matrices);
+  const auto boundary = static_cast<long>(mesh.boundaryEdges().size());
+  const auto nonManifold = static_cast<long>(mesh.nonManifoldEdges().size());
+  const auto isolated = static_cast<long>(mesh.isolatedVertices().size());
+  const Index components = mesh.numComponents();
+  const PhysicalProperties& p = model.properties;
+  if (json) {
+    std::cout << "{\n"
+              << "  \"source\": \"" << loaded.source << "\",\n"
+              << "  \"vertices\": " << mesh.numVertices() << ",\n"
+              << "  \"edges\": " << mesh.numEdges() << ",\n"
+              << "  \"faces\": " << mesh.numFaces() << ",\n"
+              << "  \"boundary_edges\": " << boundary << ",\n"
+              << "  \"non_manifold_edges\": " << nonManifold << ",\n"
+              << "  \"isolated_vertices\": " << isolated << ",\n"
+              << "  \"components\": " << components << ",\n"
+              << "  \"angle_springs\": " << model.angles.size() << ",\n"
+              << "  \"bbox_min\": " << vec(box.min) << ",\n"
+              << "  \"bbox_max\": " << vec(box.max) << ",\n"
+              << "  \"mass_total\": " << jsonNumber(p.mass.sum()) << ",\n"
+              << "  \"degenerate_faces_dropped\": " << loaded.report.degenerateFacesDropped << ",\n"
+              << "  \"vertices_welded\": " << loaded.report.verticesWelded << ",\n"
+              << "  \"t_max\": " << jsonNumber(tMax) << ",\n"
+              << "  \"t_max_tight\": " << jsonNumber(tTight) << "\n"
+              << "}\n";
+    return 0;
+  }
+  std::cout << loaded.source << "\n"
+            << "  vertices " << mesh.numVertices() << ", edges " << mesh.numEdges() << ", faces "
+            << mesh.numFaces() << "\n"
+            << "  boundary edges " << boundary << ", non-manifold edges " << nonManifold
+            << ", isolated vertices " << isolated << ", components " << components << "\n"
+            << "  angle springs " << model.angles.size() << "\n"
+            << "  bounding box [" << box.min.transpose() << "] .. [" << box.max.transpose()
+            << "]\n";
+  if (loaded.report.degenerateFacesDropped || loaded.report.verticesWelded)
+    std::cout << "  import: " << loaded.report.verticesWelded << " vertices welded, "
+              << loaded.report.degenerateFacesDropped << " degenerate faces dropped\n";
+  std::cout << "  mass " << p.mass.minCoeff() << " .. " << p.mass.maxCoeff() << " (total "
+            << p.mass.sum() << "), stiffness " << p.stiffness.minCoeff() << " .. "
+            << p.stiffness.maxCoeff() << ", angular stiffness " << p.angularStiffness.minCoeff()
+            << " .. " << p.angularStiffness.maxCoeff() << ", damping " << p.damping.minCoeff()
+            << " .. " << p.damping.maxCoeff() << "\n"
+            << "  critical sampling period T_max (equation 5) " << tMax
+            << " s, from the largest eigenvalue " << tTight << " s\n";
+  return 0;
+}
+
+}  // namespace
+
+void addInfoCommand(CLI::App& root, CommandList& commands) {
+  auto* app = root.add_subcommand("info", "topology, properties and critical sampling period");
+  auto options = std::make_shared<ModelOptions>();
+  auto json = std::make_shared<bool>(false);
+  options->addTo(app);
+  app->add_flag("--json", *json, "a JSON summary on standard output");
+  commands.push_back({app, [options, json]() { return runInfo(*options, *json); }});
+}
+
+}  // namespace zsculpt::cli

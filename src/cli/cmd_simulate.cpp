@@ -1,0 +1,140 @@
+// zsculpt simulate MESH|SCENE: headless simulation with diagnostics (cli.md).
+
+#include <chrono>
+#include <filesystem>
+#include <cmath>
+#include <iostream>
+#include <sstream>
+
+#include "commands.h"
+#include "model_options.h"
+#include "zsculpt/core/errors.h"
+#include "zsculpt/io/atomic_file.h"
+#include "zsculpt/io/state_io.h"
+
+namespace zsculpt::cli {
+
+namespace {
+
+struct SimulateOptions {
+  ModelOptions model;
+  RunOptions run;
+};
+
+int runSimulate(const SimulateOptions& options) {
+  const LoadedModel loaded = options.model.load();
+  const RunOptions::Resolved resolved = options.run.resolve(loaded);
+  Simulation sim(loaded.model, resolved.settings);
+  options.run.prepare(loaded, sim);
+  // Check the output folders before any work.
+  for (const std::string* path : {&options.run.csv, &options.run.stateOut})
+    if (!path->empty()) {
+      const auto parent = std::filesystem::path(*path).parent_path();
+      io::ensureWritableDirectory(parent.empty() ? "." : parent.string());
+    }
+
+  const long steps = resolved.steps;
+  const long window = std::max(1L, steps / 10);
+  std::ostringstream csv;
+  csv.precision(17);
+  const bool wantCsv = !options.run.csv.empty();
+  if (wantCsv) csv << "step,time,kinetic,potential,total,px,py,pz,lx,ly,lz\n";
+  auto row = [&](long step, const Diagnostics& d) {
+    csv << step << ',' << sim.time() << ',' << d.kinetic << ',' << d.potential.total() << ','
+        << d.total() << ',' << d.momentum.x() << ',' << d.momentum.y() << ',' << d.momentum.z()
+        << ',' << d.angularMomentum.x() << ',' << d.angularMomentum.y() << ','
+        << d.angularMomentum.z() << '\n';
+  };
+  const Diagnostics start = sim.diagnostics();
+  if (wantCsv) row(0, start);
+  double firstSum = 0.0, lastSum = 0.0;
+  long firstCount = 0, lastCount = 0;
+  double momentumDrift = 0.0, angularDrift = 0.0;
+  bool diverged = false;
+  long divergedAt = -1;
+  Diagnostics last = start;
+  const auto wallStart = std::chrono::steady_clock::now();
+  for (long k = 1; k <= steps; ++k) {
+    try {
+      sim.step();
+    } catch (const DivergenceError&) {
+      diverged = true;
+      divergedAt = k;
+      break;
+    }
+    const Diagnostics d = sim.diagnostics();
+    if (!std::isfinite(d.total())) {
+      diverged = true;
+      divergedAt = k;
+      break;
+    }
+    last = d;
+    if (wantCsv) row(k, d);
+    if (k <= window) {
+      firstSum += d.total();
+      ++firstCount;
+    }
+    if (k > steps - window) {
+      lastSum += d.total();
+      ++lastCount;
+    }
+    momentumDrift = std::max(momentumDrift, (d.momentum - start.momentum).norm());
+    const double l0 = start.angularMomentum.norm();
+    if (l0 > 0.0)
+      angularDrift = std::max(angularDrift, (d.angularMomentum - start.angularMomentum).norm() / l0);
+  }
+  const double wall =
+      std::chrono::duration<double>(std::chrono::steady_clock::now() - wallStart).count();
+  if (wantCsv)
+    io::writeFileAtomically(options.run.csv, [&](std::ostream& out) { out << csv.str(); });
+  if (!options.run.stateOut.empty()) io::saveState(sim.state(), options.run.stateOut);
+
+  const double energyDrift = (firstCount && lastCount && !diverged)
+                                 ? (lastSum / lastCount) / (firstSum / firstCount) - 1.0
+                                 : std::nan("");
+  if (options.run.json) {
+    std::cout << "{\n"
+              << "  \"scheme\": \"" << schemeName(resolved.settings.scheme) << "\",\n"
+              << "  \"dt\": " << jsonNumber(resolved.settings.period) << ",\n"
+              << "  \"t_max\": " << jsonNumber(resolved.tMax) << ",\n"
+              << "  \"steps\": " << steps << ",\n"
+              << "  \"diverged\": " << (diverged ? "true" : "false") << ",\n"
+              << "  \"diverged_at_step\": " << (diverged ? std::to_string(divergedAt) : "null")
+              << ",\n"
+              << "  \"energy_start\": " << jsonNumber(start.total()) << ",\n"
+              << "  \"energy_end\": " << jsonNumber(last.total()) << ",\n"
+              << "  \"energy_drift\": " << jsonNumber(energyDrift) << ",\n"
+              << "  \"momentum_drift\": " << jsonNumber(momentumDrift) << ",\n"
+              << "  \"angular_momentum_drift\": " << jsonNumber(angularDrift) << ",\n"
+              << "  \"wall_seconds\": " << jsonNumber(wall) << "\n"
+              << "}\n";
+  } else {
+    std::cout << "scheme " << schemeName(resolved.settings.scheme) << ", dt "
+              << resolved.settings.period << " s (" << resolved.settings.period / resolved.tMax
+              << " T_max), " << steps << " steps\n"
+              << "energy " << start.total() << " -> " << last.total() << " (drift "
+              << energyDrift << "), momentum drift " << momentumDrift
+              << ", angular momentum drift " << angularDrift << "\n"
+              << "wall " << wall << " s\n";
+  }
+  if (diverged) {
+    std::cerr << "zsculpt: error: " << loaded.source << ": the simulation diverged at step "
+              << divergedAt << " (t = " << sim.time() << " s)"
+              << (options.run.stateOut.empty() ? "" : "; the last finite state was written")
+              << "\n";
+    return 3;
+  }
+  return 0;
+}
+
+}  // namespace
+
+void addSimulateCommand(CLI::App& root, CommandList& commands) {
+  auto* app = root.add_subcommand("simulate", "headless simulation with diagnostics");
+  auto options = std::make_shared<SimulateOptions>();
+  options->model.addTo(app);
+  options->run.addTo(app);
+  commands.push_back({app, [options]() { return runSimulate(*options); }});
+}
+
+}  // namespace zsculpt::cli

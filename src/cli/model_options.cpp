@@ -1,0 +1,223 @@
+#include "model_options.h"
+
+#include <charconv>
+#include <cmath>
+#include <sstream>
+
+#include "zsculpt/core/errors.h"
+#include "zsculpt/io/state_io.h"
+#include "zsculpt/physics/matrices.h"
+
+namespace zsculpt::cli {
+
+void ModelOptions::addTo(CLI::App* app, bool sourceOptional) {
+  auto* positional = app->add_option("model", source,
+                                     "MESH (a file assimp reads, or builtin:NAME) or SCENE (.json)");
+  if (!sourceOptional) positional->required();
+  app->add_option("--mass", mass, "mass per vertex, kg (default 0.5)");
+  app->add_option("--damping", damping, "damping per vertex, kg/s (default 0)");
+  app->add_option("--stiffness", stiffness, "radial stiffness per vertex, N/m (default 5)");
+  app->add_option("--angular-stiffness", angularStiffness,
+                  "angular stiffness per vertex, N m/rad^2 (default 0)");
+  app->add_option("--rigidity", rigidity, "rigidity chi in [0, 1] (default 0)");
+  app->add_option("--stiffness-cap", stiffnessCap,
+                  "kappa_0 of section 4.3: stiffer vertices become partly rigid (default none)");
+  app->add_option("--rest-length-scale", restLengthScale,
+                  "rest length = scale x length as loaded (default 1; 0: linear springs)");
+  app->add_option("--gravity", gravity, "gravity GX,GY,GZ in m/s^2 (default off)")
+      ->delimiter(',')
+      ->expected(3);
+}
+
+LoadedModel ModelOptions::load() const {
+  LoadedModel loaded;
+  loaded.source = source;
+  io::SceneDescription scene;
+  const bool isScene = io::isSceneFileName(source);
+  if (isScene) {
+    scene = io::loadScene(source);
+  } else {
+    scene.mesh = source;
+  }
+  UniformProperties& u = scene.properties;
+  auto flag = [](const std::optional<double>& value, double& target, Property property,
+                 const char* name) {
+    if (!value) return;
+    if (property == Property::Rigidity || property == Property::Mass ||
+        property == Property::Damping || property == Property::Stiffness ||
+        property == Property::AngularStiffness)
+      checkPropertyValue(property, *value, name);
+    target = *value;
+  };
+  flag(mass, u.mass, Property::Mass, "--mass");
+  flag(damping, u.damping, Property::Damping, "--damping");
+  flag(stiffness, u.stiffness, Property::Stiffness, "--stiffness");
+  flag(angularStiffness, u.angularStiffness, Property::AngularStiffness, "--angular-stiffness");
+  flag(rigidity, u.rigidity, Property::Rigidity, "--rigidity");
+  if (stiffnessCap) {
+    if (!(*stiffnessCap > 0.0))
+      throw InvalidInputError("--stiffness-cap: must be positive");
+    u.stiffnessCap = *stiffnessCap;
+  }
+  if (restLengthScale) {
+    if (!(*restLengthScale >= 0.0) || !std::isfinite(*restLengthScale))
+      throw InvalidInputError("--rest-length-scale: must be a finite number >= 0");
+    u.restLengthScale = *restLengthScale;
+  }
+  if (!gravity.empty()) {
+    u.gravity = Vec3(gravity[0], gravity[1], gravity[2]);
+    if (!u.gravity.allFinite()) throw InvalidInputError("--gravity: not finite");
+  }
+  Mesh mesh = io::loadMeshSource(scene.mesh, &loaded.report);
+  loaded.model = io::buildModel(scene, std::move(mesh));
+  if (isScene) loaded.scene = std::move(scene);
+  return loaded;
+}
+
+void RunOptions::addTo(CLI::App* app) {
+  app->add_option("--scheme", scheme,
+                  "default | paper | exact | symplectic-euler | implicit-euler");
+  auto* dtOption = app->add_option("--dt", dt, "time step, seconds");
+  app->add_option("--dt-ratio", dtRatio, "time step as a fraction of equation 5's T_max (default 0.5)")
+      ->excludes(dtOption);
+  auto* stepsOption = app->add_option("--steps", steps, "number of steps (default 1000)");
+  app->add_option("--time", time, "simulated time, seconds")->excludes(stepsOption);
+  app->add_option("--perturb", perturb, "random initial velocity of this size, zero net momentum");
+  app->add_option("--seed", seed, "seed of --perturb (default 0)");
+  app->add_option("--state-in", stateIn, "initial state (CSV x,y,z,vx,vy,vz)");
+  app->add_option("--state-out", stateOut, "write the final state here");
+  app->add_option("--csv", csv, "diagnostics, one row per step");
+  app->add_option("--force", forces, "I:FX,FY,FZ[:T0:T1] force at vertex I (repeatable)");
+  app->add_option("--torque", torques, "I:TX,TY,TZ[:T0:T1] torque at vertex I (repeatable)");
+  app->add_flag("--allow-unstable", allowUnstable,
+                "run even above the scheme's stable limit (to watch it diverge)");
+  app->add_flag("--json", json, "a JSON summary on standard output");
+}
+
+namespace {
+
+double parseNumber(std::string_view text, const std::string& what) {
+  double value = 0.0;
+  const auto [ptr, ec] = std::from_chars(text.data(), text.data() + text.size(), value);
+  if (ec != std::errc() || ptr != text.data() + text.size() || !std::isfinite(value))
+    throw InvalidInputError(what + ": '" + std::string(text) + "' is not a finite number");
+  return value;
+}
+
+}  // namespace
+
+TimedLoad parseTimedLoad(const std::string& text, const std::string& flag) {
+  std::vector<std::string> parts;
+  std::stringstream in(text);
+  std::string part;
+  while (std::getline(in, part, ':')) parts.push_back(part);
+  const std::string what = flag + " " + text;
+  if (parts.size() != 2 && parts.size() != 4)
+    throw InvalidInputError(what + ": expected I:X,Y,Z or I:X,Y,Z:T0:T1");
+  TimedLoad load;
+  const double vertex = parseNumber(parts[0], what);
+  if (vertex != std::floor(vertex) || vertex < 0 || vertex > 2e9)
+    throw InvalidInputError(what + ": '" + parts[0] + "' is not a vertex index");
+  load.vertex = static_cast<Index>(vertex);
+  std::vector<std::string> xyz;
+  std::stringstream v(parts[1]);
+  while (std::getline(v, part, ',')) xyz.push_back(part);
+  if (xyz.size() != 3) throw InvalidInputError(what + ": expected three components X,Y,Z");
+  for (int c = 0; c < 3; ++c) load.value[c] = parseNumber(xyz[c], what);
+  if (parts.size() == 4) {
+    load.start = parseNumber(parts[2], what);
+    load.end = parseNumber(parts[3], what);
+    if (!(load.end >= load.start)) throw InvalidInputError(what + ": T1 is before T0");
+  }
+  return load;
+}
+
+RunOptions::Resolved RunOptions::resolve(const LoadedModel& loaded) const {
+  Resolved r;
+  const io::SimulationSettings* fromScene = loaded.scene ? &loaded.scene->simulation : nullptr;
+  if (!scheme.empty())
+    r.settings.scheme = schemeFromName(scheme);
+  else if (fromScene)
+    r.settings.scheme = schemeFromName(io::schemeName(fromScene->scheme));
+  const SystemMatrices matrices(loaded.model);
+  r.tMax = criticalPeriod(matrices);
+  double period = 0.0;
+  if (dt) {
+    period = *dt;
+  } else if (dtRatio) {
+    period = *dtRatio * r.tMax;
+  } else if (fromScene && fromScene->dt) {
+    period = *fromScene->dt;
+  } else {
+    period = (fromScene && fromScene->dtRatio ? *fromScene->dtRatio : 0.5) * r.tMax;
+  }
+  if (!std::isfinite(period)) {
+    // No stiffness at all (a free particle cloud): any step is stable; pick 10 ms.
+    period = 0.01;
+  }
+  if (!(period > 0.0))
+    throw InvalidInputError(std::string(dt ? "--dt" : "--dt-ratio") + ": the time step must be positive");
+  // Refuse a step above the scheme's stable limit. The Gerschgorin bound is cheap and never
+  // above the tight one, so the eigenvalue is computed only when the step exceeds it.
+  const double cheapLimit =
+      stablePeriodLimit(r.settings.scheme, 2.0 * matrices.omega2().diagonal().maxCoeff());
+  if (period > cheapLimit && !allowUnstable) {
+    const double limit = stablePeriodLimit(r.settings.scheme, largestEigenvalue(matrices));
+    if (period > limit) {
+      std::ostringstream msg;
+      msg.precision(6);
+      msg << (dt ? "--dt" : "--dt-ratio") << ": time step " << period << " s ("
+          << period / r.tMax << " T_max) is above the stable limit " << limit << " s ("
+          << limit / r.tMax << " T_max) of scheme " << schemeName(r.settings.scheme)
+          << "; pass --allow-unstable to run it anyway";
+      throw InvalidInputError(msg.str());
+    }
+  }
+  r.settings.period = period;
+  if (steps) {
+    r.steps = *steps;
+  } else if (time) {
+    r.steps = static_cast<long>(std::ceil(*time / period - 1e-9));
+  } else if (fromScene && fromScene->steps) {
+    r.steps = static_cast<long>(*fromScene->steps);
+  } else if (fromScene && fromScene->time) {
+    r.steps = static_cast<long>(std::ceil(*fromScene->time / period - 1e-9));
+  }
+  if (r.steps < 0) throw InvalidInputError("--steps: must not be negative");
+  return r;
+}
+
+void RunOptions::prepare(const LoadedModel& loaded, Simulation& sim) const {
+  State state = State::atRest(loaded.model.mesh);
+  if (!stateIn.empty()) state = io::loadState(stateIn, loaded.model.mesh.numVertices());
+  const double amplitude =
+      perturb ? *perturb : (loaded.scene ? loaded.scene->simulation.perturb : 0.0);
+  if (!(amplitude >= 0.0) || !std::isfinite(amplitude))
+    throw InvalidInputError("--perturb: must be a finite number >= 0");
+  if (amplitude > 0.0) {
+    const unsigned s = seed ? *seed
+                            : (loaded.scene ? static_cast<unsigned>(loaded.scene->simulation.seed) : 0u);
+    Points kick;
+    randomVelocity(loaded.model.properties.mass, amplitude, s, kick);
+    state.velocity += kick;
+  }
+  sim.setState(state);
+  if (loaded.scene) {
+    for (const io::TimedLoad& f : loaded.scene->forces)
+      sim.addForce(TimedLoad{f.vertex, f.value, f.start, f.end});
+    for (const io::TimedLoad& t : loaded.scene->torques)
+      sim.addTorque(TimedLoad{t.vertex, t.value, t.start, t.end});
+  }
+  for (const std::string& f : forces) sim.addForce(parseTimedLoad(f, "--force"));
+  for (const std::string& t : torques) sim.addTorque(parseTimedLoad(t, "--torque"));
+}
+
+std::string jsonNumber(double value) {
+  if (!std::isfinite(value)) return "null";
+  std::ostringstream out;
+  out.precision(17);
+  out << value;
+  return out.str();
+}
+
+}  // namespace zsculpt::cli

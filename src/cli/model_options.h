@@ -1,0 +1,69 @@
+#pragma once
+// Internal to the cli module: the model flags and run flags of ../shared/notes/cli.md,
+// shared by info, simulate, render, subdivide and bench, and how they turn a MESH or SCENE
+// argument into a model and a simulation.
+
+#include <CLI/CLI.hpp>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "zsculpt/io/mesh_io.h"
+#include "zsculpt/io/scene.h"
+#include "zsculpt/simulation/simulation.h"
+
+namespace zsculpt::cli {
+
+struct LoadedModel {
+  Model model;
+  std::optional<io::SceneDescription> scene;
+  io::MeshLoadReport report;
+  std::string source;
+};
+
+/// MESH|SCENE plus the uniform model flags (they replace the scene's uniform values;
+/// per-vertex values painted in a scene stay).
+struct ModelOptions {
+  std::string source;
+  std::optional<double> mass, damping, stiffness, angularStiffness, rigidity, stiffnessCap,
+      restLengthScale;
+  std::vector<double> gravity;
+
+  /// Registers the positional MESH|SCENE (required unless `sourceOptional`) and the flags.
+  void addTo(CLI::App* app, bool sourceOptional = false);
+  [[nodiscard]] LoadedModel load() const;
+};
+
+/// How long and how finely to simulate, and what acts on the model.
+struct RunOptions {
+  std::string scheme;
+  std::optional<double> dt, dtRatio, time;
+  std::optional<long> steps;
+  std::optional<double> perturb;
+  std::optional<unsigned> seed;
+  std::string stateIn, stateOut, csv;
+  std::vector<std::string> forces, torques;
+  bool allowUnstable = false;
+  bool json = false;
+
+  void addTo(CLI::App* app);
+  /// The scheme, period and step count from the flags, else the scene, else defaults
+  /// (default scheme, 0.5 T_max, 1000 steps). Refuses a period above the scheme's stable
+  /// limit unless --allow-unstable.
+  struct Resolved {
+    SimulationSettings settings;
+    long steps = 1000;
+    double tMax = 0.0;
+  };
+  [[nodiscard]] Resolved resolve(const LoadedModel& loaded) const;
+  /// Initial state (rest, --state-in, --perturb) and loads (scene and flags) on `sim`.
+  void prepare(const LoadedModel& loaded, Simulation& sim) const;
+};
+
+/// "I:FX,FY,FZ[:T0:T1]" as in cli.md; throws InvalidInputError naming the flag.
+TimedLoad parseTimedLoad(const std::string& text, const std::string& flag);
+
+/// A JSON number that stays valid JSON for infinities (as null).
+std::string jsonNumber(double value);
+
+}  // namespace zsculpt::cli
