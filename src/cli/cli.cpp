@@ -14,6 +14,7 @@ int run(int argc, char** argv) {
   CommandList commands;
   addInfoCommand(app, commands);
   addSimulateCommand(app, commands);
+  addReproduceCommand(app, commands);
   try {
     app.parse(argc, argv);
   } catch (const CLI::CallForHelp& e) {

@@ -12,15 +12,17 @@ namespace zsculpt::io {
 struct MeshLoadReport {
   Index meshesMerged = 0;            // assimp meshes joined into one
   Index verticesWelded = 0;          // file vertices merged into another at the same position
-  Index degenerateFacesDropped = 0;  // faces with < 3 distinct corners after welding
+  Index degenerateFacesDropped = 0;  // faces with < 3 distinct corners after welding, or
+                                     // repeating a corner
   Index pointsAndLinesDropped = 0;   // point and line primitives that were not kept as edges
   Index unusedVerticesDropped = 0;   // welded vertices that no kept face or edge uses
 };
 
 /// Imports a mesh file. Vertices are welded by exact position across all meshes of the
 /// file with node transforms applied, in order of first occurrence; polygons stay
-/// polygons; degenerate faces are dropped and counted. Throws IOError (missing,
-/// unreadable, unsupported, empty) or InvalidInputError (non-finite coordinates).
+/// polygons; degenerate faces are dropped and counted (see docs/scene-format.md, "Mesh
+/// files"). Throws IOError "<path>: <reason>" (missing, unreadable, unsupported, empty,
+/// assimp's error) or InvalidInputError (non-finite coordinates, an index out of range).
 Mesh loadMesh(const std::string& path, MeshLoadReport* report = nullptr);
 
 /// Same from memory; `hint` is the format's extension ("obj", "ply"...). For fuzzing.
@@ -30,11 +32,11 @@ Mesh loadMeshFromMemory(const void* data, std::size_t size, const std::string& h
 /// A built-in model name ("builtin:torus:20:10") or a mesh file.
 Mesh loadMeshSource(const std::string& source, MeshLoadReport* report = nullptr);
 
-/// Exports by extension: .obj .ply .stl .gltf .glb (and any other assimp exporter's
-/// extension). Written atomically (temporary file, flush, rename). Throws IOError.
-/// Coordinates are stored as floats. OBJ, PLY and glTF keep vertex order, polygons and
-/// curve edges (glTF as FB_ngon_encoding fans, which loadMesh regroups; .gltf embeds its
-/// buffer); STL keeps triangulated faces only (vertex order and curve edges are lost).
+/// Exports by extension: .obj .ply .stl .gltf .glb .dae. Written atomically (temporary
+/// file, flush, rename). Throws IOError. Coordinates are stored as floats. OBJ, PLY and glTF
+/// keep vertex order, polygons and curve edges (glTF as FB_ngon_encoding fans, which loadMesh
+/// regroups; .gltf embeds its buffer); STL keeps triangulated faces only (vertex order and
+/// curve edges are lost).
 void saveMesh(const Mesh& mesh, const std::string& path);
 
 }  // namespace zsculpt::io

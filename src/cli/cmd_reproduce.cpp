@@ -1,0 +1,54 @@
+// zsculpt reproduce WHAT --out DIR: the paper's tables and figures (reproduce.h).
+
+#include <filesystem>
+#include <functional>
+#include <string>
+#include <utility>
+#include <vector>
+
+#include "commands.h"
+#include "reproduce.h"
+#include "zsculpt/core/errors.h"
+#include "zsculpt/io/atomic_file.h"
+
+namespace zsculpt::cli {
+
+namespace {
+
+const std::vector<std::pair<std::string, std::function<int(const ReproduceOptions&)>>>& targets() {
+  static const std::vector<std::pair<std::string, std::function<int(const ReproduceOptions&)>>>
+      list = {
+          {"table1", reproduceTable1},
+          {"figure3", reproduceFigure3},
+      };
+  return list;
+}
+
+}  // namespace
+
+void addReproduceCommand(CLI::App& root, CommandList& commands) {
+  auto* app = root.add_subcommand("reproduce", "the paper's tables and figures, as data and images");
+  auto what = std::make_shared<std::string>();
+  auto options = std::make_shared<ReproduceOptions>();
+  std::string names;
+  for (const auto& [name, fn] : targets()) names += (names.empty() ? "" : ", ") + name;
+  app->add_option("what", *what, "one of: " + names + ", all")->required();
+  app->add_option("--out", options->out, "output folder")->required();
+  app->add_flag("--quick", options->quick, "shorter runs (for tests)");
+  commands.push_back({app, [what, options]() {
+                        io::ensureWritableDirectory(options->out);
+                        if (*what == "all") {
+                          int status = 0;
+                          for (const auto& [name, fn] : targets()) status = std::max(status, fn(*options));
+                          return status;
+                        }
+                        for (const auto& [name, fn] : targets())
+                          if (name == *what) return fn(*options);
+                        std::string valid;
+                        for (const auto& [name, fn] : targets()) valid += (valid.empty() ? "" : ", ") + name;
+                        throw InvalidInputError("reproduce: unknown target '" + *what +
+                                                "' (valid: " + valid + ", all)");
+                      }});
+}
+
+}  // namespace zsculpt::cli

@@ -1,0 +1,187 @@
+#include "zsculpt/io/atomic_file.h"
+
+#include <fcntl.h>
+#include <sys/stat.h>
+#include <unistd.h>
+
+#include <atomic>
+#include <cerrno>
+#include <cstring>
+#include <filesystem>
+#include <random>
+#include <streambuf>
+#include <vector>
+
+#include "zsculpt/core/errors.h"
+
+namespace zsculpt::io {
+
+namespace fs = std::filesystem;
+
+namespace {
+
+[[noreturn]] void fail(const std::string& path, const std::string& reason) {
+  throw IOError(path + ": " + reason);
+}
+
+std::string errnoText(int error) {
+  return std::strerror(error);
+}
+
+/// An ostream buffer over a POSIX descriptor, so that write errors keep their errno
+/// (std::ofstream reports only "failed") and the descriptor can be fsynced.
+class FdOutBuf : public std::streambuf {
+ public:
+  explicit FdOutBuf(int fd) : fd_(fd), buffer_(1 << 16) {
+    setp(buffer_.data(), buffer_.data() + buffer_.size());
+  }
+  [[nodiscard]] int error() const { return error_; }
+
+ protected:
+  int_type overflow(int_type ch) override {
+    if (!flushBuffer()) return traits_type::eof();
+    if (!traits_type::eq_int_type(ch, traits_type::eof())) {
+      *pptr() = traits_type::to_char_type(ch);
+      pbump(1);
+    }
+    return traits_type::not_eof(ch);
+  }
+  int sync() override { return flushBuffer() ? 0 : -1; }
+
+ private:
+  bool flushBuffer() {
+    if (error_ != 0) return false;
+    const char* p = pbase();
+    while (p < pptr()) {
+      const ssize_t written = ::write(fd_, p, static_cast<size_t>(pptr() - p));
+      if (written < 0) {
+        if (errno == EINTR) continue;
+        error_ = errno;
+        return false;
+      }
+      p += written;
+    }
+    setp(buffer_.data(), buffer_.data() + buffer_.size());
+    return true;
+  }
+
+  int fd_;
+  std::vector<char> buffer_;
+  int error_ = 0;
+};
+
+/// The folder `path` lives in ("." for a bare file name).
+fs::path parentOf(const fs::path& path) {
+  fs::path parent = path.parent_path();
+  return parent.empty() ? fs::path(".") : parent;
+}
+
+void checkTarget(const std::string& path) {
+  const fs::path p(path);
+  if (path.empty() || !p.has_filename()) fail(path.empty() ? "\"\"" : path, "not a file name");
+  std::error_code ec;
+  if (fs::is_directory(p, ec)) fail(path, "is a directory");
+}
+
+/// A name in the same folder as `path` (rename is atomic only within one file system),
+/// hidden, unique per process and call, and ending in the target's extension so that
+/// libraries which pick a format or companion file names from the extension still work.
+std::string temporaryName(const fs::path& path) {
+  static std::atomic<unsigned> counter{0};
+  static const unsigned seed = std::random_device{}();
+  char suffix[40];
+  std::snprintf(suffix, sizeof suffix, ".tmp.%ld.%08x", static_cast<long>(::getpid()),
+                seed ^ (counter.fetch_add(1) * 2654435761u));
+  // Built with append: GCC 12 misreports -Wrestrict on chained operator+ here.
+  std::string name(".");
+  name.append(path.filename().string());
+  name.append(suffix);
+  name.append(path.extension().string());
+  return (parentOf(path) / name).string();
+}
+
+/// Creates the temporary file exclusively; returns its descriptor.
+int createTemporary(const std::string& path, std::string& temporary) {
+  for (int attempt = 0; attempt < 16; ++attempt) {
+    temporary = temporaryName(path);
+    const int fd = ::open(temporary.c_str(), O_WRONLY | O_CREAT | O_EXCL | O_CLOEXEC, 0666);
+    if (fd >= 0) return fd;
+    if (errno == EEXIST) continue;
+    fail(path, "cannot create a file in " + parentOf(path).string() + ": " + errnoText(errno));
+  }
+  fail(path, "cannot find a free temporary file name");
+}
+
+void syncFile(const std::string& path, const std::string& temporary) {
+  const int fd = ::open(temporary.c_str(), O_RDONLY | O_CLOEXEC);
+  if (fd < 0) fail(path, "the written file is gone: " + errnoText(errno));
+  const bool synced = ::fsync(fd) == 0;
+  const int error = errno;
+  ::close(fd);
+  if (!synced) fail(path, "cannot flush to disk: " + errnoText(error));
+}
+
+/// Renames the temporary over the target and makes the rename itself durable.
+void commit(const std::string& path, const std::string& temporary) {
+  if (::rename(temporary.c_str(), path.c_str()) != 0) fail(path, errnoText(errno));
+  const int dir = ::open(parentOf(path).c_str(), O_RDONLY | O_DIRECTORY | O_CLOEXEC);
+  if (dir >= 0) {
+    ::fsync(dir);  // best effort: the data is in place; some file systems refuse this
+    ::close(dir);
+  }
+}
+
+}  // namespace
+
+void writeFileAtomically(const std::string& path, const std::function<void(std::ostream&)>& write) {
+  checkTarget(path);
+  std::string temporary;
+  int fd = createTemporary(path, temporary);
+  try {
+    FdOutBuf buffer(fd);
+    std::ostream out(&buffer);
+    write(out);
+    out.flush();
+    if (buffer.error() != 0) fail(path, errnoText(buffer.error()));
+    if (!out) fail(path, "write failed");
+    if (::fsync(fd) != 0) fail(path, "cannot flush to disk: " + errnoText(errno));
+    const int closed = ::close(fd);
+    fd = -1;
+    if (closed != 0) fail(path, errnoText(errno));
+    commit(path, temporary);
+  } catch (...) {
+    if (fd >= 0) ::close(fd);
+    ::unlink(temporary.c_str());
+    throw;
+  }
+}
+
+void writeFileAtomicallyVia(const std::string& path,
+                            const std::function<void(const std::string&)>& writeTo) {
+  checkTarget(path);
+  std::string temporary;
+  // Created (and so reserved) before the library opens it by name.
+  ::close(createTemporary(path, temporary));
+  try {
+    writeTo(temporary);
+    syncFile(path, temporary);
+    commit(path, temporary);
+  } catch (...) {
+    ::unlink(temporary.c_str());
+    throw;
+  }
+}
+
+void ensureWritableDirectory(const std::string& dir) {
+  const std::string name = dir.empty() ? std::string(".") : dir;
+  std::error_code ec;
+  const fs::path p(name);
+  if (!fs::exists(p, ec)) {
+    fs::create_directories(p, ec);
+    if (ec) fail(name, "cannot create the folder: " + ec.message());
+  }
+  if (!fs::is_directory(p, ec)) fail(name, "not a folder");
+  if (::access(name.c_str(), W_OK | X_OK) != 0) fail(name, "not writable: " + errnoText(errno));
+}
+
+}  // namespace zsculpt::io

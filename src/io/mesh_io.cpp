@@ -1,0 +1,772 @@
+#include "zsculpt/io/mesh_io.h"
+
+#include <assimp/config.h>
+#include <assimp/postprocess.h>
+#include <assimp/scene.h>
+#include <fcntl.h>
+#include <unistd.h>
+
+#include <algorithm>
+#include <assimp/Exporter.hpp>
+#include <assimp/Importer.hpp>
+#include <bit>
+#include <cctype>
+#include <cerrno>
+#include <cstring>
+#include <filesystem>
+#include <fstream>
+#include <limits>
+#include <memory>
+#include <nlohmann/json.hpp>
+#include <sstream>
+#include <unordered_map>
+#include <unordered_set>
+
+#include "zsculpt/core/errors.h"
+#include "zsculpt/io/atomic_file.h"
+#include "zsculpt/mesh/builtin.h"
+
+namespace zsculpt::io {
+
+namespace fs = std::filesystem;
+
+namespace {
+
+// No post-processing at all: no Triangulate (polygons stay polygons), no
+// JoinIdenticalVertices (it compares normals and UVs too; we weld by position below), no
+// FindDegenerates (degenerate faces are dropped after welding, where they are counted).
+// Not even ValidateDataStructure: it rejects usable files for things we do not read
+// (lights without nodes in OpenGEX, an empty solid next to a good one in STL, RAW
+// files); meshFromScene checks every pointer, count and index it uses instead.
+constexpr unsigned kImportFlags = 0;
+
+std::string lowercaseExtension(const std::string& path) {
+  std::string ext = fs::path(path).extension().string();
+  if (!ext.empty() && ext.front() == '.') ext.erase(0, 1);
+  std::transform(ext.begin(), ext.end(), ext.begin(),
+                 [](unsigned char c) { return static_cast<char>(std::tolower(c)); });
+  return ext;
+}
+
+/// Assimp's messages may span lines; ours are one line.
+std::string oneLine(std::string text) {
+  for (char& c : text)
+    if (c == '\n' || c == '\r' || c == '\t') c = ' ';
+  const auto first = text.find_first_not_of(' ');
+  if (first == std::string::npos) return "unknown error";
+  const auto last = text.find_last_not_of(' ');
+  return text.substr(first, last - first + 1);
+}
+
+void configure(Assimp::Importer& importer) {
+  // Skeleton-only files (BVH, MD5 animations) would otherwise get made-up bone meshes.
+  importer.SetPropertyBool(AI_CONFIG_IMPORT_NO_SKELETON_MESHES, true);
+}
+
+// ---- glTF ---------------------------------------------------------------------------------
+// glTF stores triangles only. saveMesh writes polygons as fans marked with the
+// FB_ngon_encoding extension (consecutive triangles sharing their first corner form one
+// polygon); assimp 5.2 reads them back as loose triangles, so we regroup them here. The
+// extension needs consecutive polygons to start at different corners; saveMesh rotates a
+// polygon by one corner where needed and lists those in the primitive's extras
+// ("zsculpt_rotated_faces") so that the corner order, and so the edge numbering, survives.
+
+constexpr const char* kRotatedFacesKey = "zsculpt_rotated_faces";
+
+/// The JSON of a .gltf file, or the JSON chunk of a .glb (12-byte header, then chunks of
+/// length, type, data; the first chunk is the JSON), and whatever follows it.
+struct GltfParts {
+  std::string json;
+  std::string rest;  // .glb: the chunks after the JSON chunk
+  bool valid = false;
+};
+
+GltfParts splitGltf(std::string_view bytes, bool binary) {
+  GltfParts parts;
+  if (!binary) {
+    parts.json = bytes;
+    parts.valid = true;
+    return parts;
+  }
+  if (bytes.size() < 20 || bytes.substr(0, 4) != "glTF" || bytes.substr(16, 4) != "JSON")
+    return parts;
+  std::uint32_t length = 0;
+  std::memcpy(&length, bytes.data() + 12, 4);
+  if (length > bytes.size() - 20) return parts;
+  parts.json = bytes.substr(20, length);
+  parts.rest = bytes.substr(20 + length);
+  parts.valid = true;
+  return parts;
+}
+
+std::string joinGlb(const std::string& json, const std::string& rest) {
+  std::string padded = json;
+  while (padded.size() % 4 != 0) padded += ' ';  // the JSON chunk is padded with spaces
+  auto u32 = [](std::uint32_t v) { return std::string(reinterpret_cast<const char*>(&v), 4); };
+  const auto total = static_cast<std::uint32_t>(12 + 8 + padded.size() + rest.size());
+  return "glTF" + u32(2) + u32(total) + u32(static_cast<std::uint32_t>(padded.size())) + "JSON" +
+         padded + rest;
+}
+
+struct GltfPrimitive {
+  bool ngon = false;              // an FB_ngon_encoding triangle list
+  std::vector<unsigned> rotated;  // polygons saveMesh rotated by one corner
+};
+
+/// One entry per glTF primitive, in file order (assimp makes one aiMesh per primitive in
+/// that order). Empty when the file uses no FB_ngon_encoding or cannot be read.
+std::vector<GltfPrimitive> gltfPrimitives(std::string_view bytes, bool binary) {
+  const GltfParts parts = splitGltf(bytes, binary);
+  if (!parts.valid) return {};
+  const auto json = nlohmann::json::parse(parts.json, nullptr, false);
+  if (json.is_discarded() || !json.is_object()) return {};
+  const auto used = json.find("extensionsUsed");
+  if (used == json.end() || !used->is_array() ||
+      std::find(used->begin(), used->end(), "FB_ngon_encoding") == used->end())
+    return {};
+  const auto meshes = json.find("meshes");
+  if (meshes == json.end() || !meshes->is_array()) return {};
+  std::vector<GltfPrimitive> primitives;
+  for (const auto& mesh : *meshes) {
+    if (!mesh.is_object() || !mesh.contains("primitives") || !mesh["primitives"].is_array())
+      return {};
+    for (const auto& primitive : mesh["primitives"]) {
+      GltfPrimitive info;
+      if (primitive.is_object()) {
+        const auto mode = primitive.find("mode");
+        const bool triangles =
+            mode == primitive.end() || (mode->is_number_integer() && mode->get<int>() == 4);
+        const auto ext = primitive.find("extensions");
+        info.ngon = triangles && ext != primitive.end() && ext->is_object() &&
+                    ext->contains("FB_ngon_encoding");
+        const auto extras = primitive.find("extras");
+        if (info.ngon && extras != primitive.end() && extras->is_object()) {
+          const auto rotated = extras->find(kRotatedFacesKey);
+          if (rotated != extras->end() && rotated->is_array())
+            for (const auto& f : *rotated)
+              if (f.is_number_unsigned()) info.rotated.push_back(f.get<unsigned>());
+        }
+      }
+      primitives.push_back(std::move(info));
+    }
+  }
+  return primitives;
+}
+
+std::vector<GltfPrimitive> gltfPrimitivesOfFile(const std::string& path, const std::string& ext) {
+  if (ext != "gltf" && ext != "glb") return {};
+  std::ifstream in(path, std::ios::binary);
+  std::ostringstream bytes;
+  bytes << in.rdbuf();
+  return gltfPrimitives(bytes.str(), ext == "glb");
+}
+
+// ---- welding ------------------------------------------------------------------------------
+
+/// Vertices welded by exact position: the key is the bit pattern of the three doubles,
+/// with -0 folded into +0 (they compare equal, so they must weld, or Mesh would see a
+/// zero-length spring).
+class Welder {
+ public:
+  Index add(const Vec3& p) {
+    Key key;
+    for (int k = 0; k < 3; ++k) key[k] = std::bit_cast<std::uint64_t>(p[k] == 0.0 ? 0.0 : p[k]);
+    const auto [it, inserted] = index_.try_emplace(key, static_cast<Index>(positions_.size()));
+    if (inserted) positions_.push_back(p);
+    return it->second;
+  }
+  [[nodiscard]] const std::vector<Vec3>& positions() const { return positions_; }
+
+ private:
+  using Key = std::array<std::uint64_t, 3>;
+  struct KeyHash {
+    size_t operator()(const Key& key) const {
+      std::uint64_t h = 0x9e3779b97f4a7c15ull;
+      for (std::uint64_t v : key) {
+        h ^= v + 0x9e3779b97f4a7c15ull + (h << 6) + (h >> 2);
+        h *= 0xbf58476d1ce4e5b9ull;
+        h ^= h >> 31;
+      }
+      return static_cast<size_t>(h);
+    }
+  };
+  std::unordered_map<Key, Index, KeyHash> index_;
+  std::vector<Vec3> positions_;
+};
+
+using Transform = Eigen::Matrix4d;
+
+Transform toEigen(const aiMatrix4x4& m) {
+  Transform t;
+  for (int r = 0; r < 4; ++r)
+    for (int c = 0; c < 4; ++c) t(r, c) = static_cast<double>(m[r][c]);
+  return t;
+}
+
+/// Every (mesh, global transform) pair of the node tree, depth first in file order; a mesh
+/// used by several nodes appears once per node. Meshes no node uses are taken as they are.
+std::vector<std::pair<unsigned, Transform>> meshInstances(const aiScene& scene,
+                                                          const std::string& name) {
+  std::vector<std::pair<unsigned, Transform>> instances;
+  std::vector<bool> used(scene.mNumMeshes, false);
+  if (scene.mRootNode != nullptr) {
+    std::vector<std::pair<const aiNode*, Transform>> stack;
+    std::unordered_set<const aiNode*> visited;
+    stack.emplace_back(scene.mRootNode, toEigen(scene.mRootNode->mTransformation));
+    while (!stack.empty()) {
+      auto [node, transform] = stack.back();
+      stack.pop_back();
+      if (!visited.insert(node).second)
+        throw IOError(name + ": the node graph is not a tree (a node is used twice)");
+      for (unsigned k = 0; node->mMeshes != nullptr && k < node->mNumMeshes; ++k) {
+        const unsigned m = node->mMeshes[k];
+        if (m >= scene.mNumMeshes)
+          throw IOError(name + ": node '" + node->mName.C_Str() + "' refers to mesh " +
+                        std::to_string(m) + ", out of range [0, " +
+                        std::to_string(scene.mNumMeshes) + ")");
+        used[m] = true;
+        instances.emplace_back(m, transform);
+      }
+      for (unsigned c = node->mNumChildren; node->mChildren != nullptr && c-- > 0;) {
+        const aiNode* child = node->mChildren[c];
+        if (child != nullptr)
+          stack.emplace_back(child, transform * toEigen(child->mTransformation));
+      }
+    }
+  }
+  for (unsigned m = 0; m < scene.mNumMeshes; ++m)
+    if (!used[m]) instances.emplace_back(m, Transform::Identity());
+  return instances;
+}
+
+/// Regroups FB_ngon_encoding fans: triangles (a,b,c), (a,c,d), ... become (a,b,c,d,...),
+/// and undoes the rotations saveMesh recorded.
+std::vector<std::vector<unsigned>> decodeNgons(const aiMesh& mesh, const GltfPrimitive& info) {
+  std::vector<std::vector<unsigned>> polygons;
+  for (unsigned f = 0; mesh.mFaces != nullptr && f < mesh.mNumFaces; ++f) {
+    const aiFace& face = mesh.mFaces[f];
+    if (face.mIndices == nullptr) {
+      polygons.emplace_back();
+      continue;
+    }
+    if (face.mNumIndices == 3 && !polygons.empty() && polygons.back().size() >= 3 &&
+        polygons.back().front() == face.mIndices[0] && polygons.back().back() == face.mIndices[1]) {
+      polygons.back().push_back(face.mIndices[2]);
+      continue;
+    }
+    polygons.emplace_back(face.mIndices, face.mIndices + face.mNumIndices);
+  }
+  for (unsigned f : info.rotated)
+    if (f < polygons.size() && polygons[f].size() >= 3)
+      std::rotate(polygons[f].begin(), polygons[f].end() - 1, polygons[f].end());
+  return polygons;
+}
+
+Mesh meshFromScene(const aiScene& scene, const std::string& name, MeshLoadReport* report,
+                   const std::vector<GltfPrimitive>& gltf) {
+  MeshLoadReport counts;
+  Welder welder;
+  std::vector<std::vector<Index>> faces;
+  std::vector<std::array<Index, 2>> edges;
+  const bool decode = !gltf.empty() && gltf.size() == scene.mNumMeshes;
+  std::size_t fileVertices = 0;
+  std::vector<Index> welded;
+  std::vector<Index> corners;
+
+  for (const auto& [m, transform] : meshInstances(scene, name)) {
+    const aiMesh* mesh = scene.mMeshes != nullptr ? scene.mMeshes[m] : nullptr;
+    if (mesh == nullptr || mesh->mNumVertices == 0 || mesh->mVertices == nullptr) continue;
+    ++counts.meshesMerged;
+    fileVertices += mesh->mNumVertices;
+    if (fileVertices > static_cast<std::size_t>(std::numeric_limits<Index>::max()))
+      throw IOError(name + ": too many vertices");
+    const bool identity = transform == Transform::Identity();
+    welded.resize(mesh->mNumVertices);
+    for (unsigned v = 0; v < mesh->mNumVertices; ++v) {
+      const aiVector3D& a = mesh->mVertices[v];
+      Vec3 p(a.x, a.y, a.z);
+      if (!identity) p = (transform * p.homogeneous()).hnormalized();
+      if (!p.allFinite())
+        throw InvalidInputError(name + ": vertex " + std::to_string(v) + " of mesh " +
+                                std::to_string(m) + " has a non-finite coordinate");
+      welded[v] = welder.add(p);
+    }
+    auto addPrimitive = [&](const unsigned* indices, unsigned count, unsigned f) {
+      if (indices == nullptr) count = 0;
+      for (unsigned k = 0; k < count; ++k)
+        if (indices[k] >= mesh->mNumVertices)
+          throw InvalidInputError(name + ": face " + std::to_string(f) + " of mesh " +
+                                  std::to_string(m) + " refers to vertex " +
+                                  std::to_string(indices[k]) + ", out of range [0, " +
+                                  std::to_string(mesh->mNumVertices) + ")");
+      if (count < 2) {
+        ++counts.pointsAndLinesDropped;
+        return;
+      }
+      // Corners after welding, with repeats of the previous corner removed (cyclically).
+      corners.clear();
+      for (unsigned k = 0; k < count; ++k) {
+        const Index c = welded[indices[k]];
+        if (corners.empty() || corners.back() != c) corners.push_back(c);
+      }
+      while (corners.size() > 1 && corners.back() == corners.front()) corners.pop_back();
+      if (count == 2) {
+        if (corners.size() == 2)
+          edges.push_back({corners[0], corners[1]});
+        else
+          ++counts.pointsAndLinesDropped;
+        return;
+      }
+      // A face that still repeats a corner (a bow tie, a slit) has no usable springs.
+      bool repeats = corners.size() < 3;
+      for (size_t i = 0; i < corners.size() && !repeats; ++i)
+        for (size_t j = 0; j < i && !repeats; ++j) repeats = corners[i] == corners[j];
+      if (repeats)
+        ++counts.degenerateFacesDropped;
+      else
+        faces.push_back(corners);
+    };
+    if (decode && gltf[m].ngon) {
+      const auto polygons = decodeNgons(*mesh, gltf[m]);
+      for (size_t f = 0; f < polygons.size(); ++f)
+        addPrimitive(polygons[f].data(), static_cast<unsigned>(polygons[f].size()),
+                     static_cast<unsigned>(f));
+    } else if (mesh->mFaces != nullptr) {
+      for (unsigned f = 0; f < mesh->mNumFaces; ++f)
+        addPrimitive(mesh->mFaces[f].mIndices, mesh->mFaces[f].mNumIndices, f);
+    }
+  }
+
+  const auto& positions = welder.positions();
+  counts.verticesWelded = static_cast<Index>(fileVertices - positions.size());
+  if (faces.empty() && edges.empty()) {
+    std::string reason = "empty mesh: no faces or edges";
+    if (fileVertices > 0) reason += " among its " + std::to_string(fileVertices) + " vertices";
+    if (counts.degenerateFacesDropped > 0 || counts.pointsAndLinesDropped > 0)
+      reason += " (" + std::to_string(counts.degenerateFacesDropped) + " degenerate faces and " +
+                std::to_string(counts.pointsAndLinesDropped) + " points or lines dropped)";
+    throw IOError(name + ": " + reason);
+  }
+
+  // Keep only vertices that a face or an edge uses, in order of first occurrence.
+  std::vector<Index> newIndex(positions.size(), -1);
+  for (const auto& face : faces)
+    for (Index c : face) newIndex[c] = 0;
+  for (const auto& edge : edges) newIndex[edge[0]] = newIndex[edge[1]] = 0;
+  Index kept = 0;
+  for (Index& i : newIndex)
+    if (i == 0) i = kept++;
+  counts.unusedVerticesDropped = static_cast<Index>(positions.size()) - kept;
+  Points points(kept, 3);
+  for (size_t v = 0; v < positions.size(); ++v)
+    if (newIndex[v] >= 0) points.row(newIndex[v]) = positions[v].transpose();
+  for (auto& face : faces)
+    for (Index& c : face) c = newIndex[c];
+  for (auto& edge : edges) edge = {newIndex[edge[0]], newIndex[edge[1]]};
+
+  try {
+    Mesh result(std::move(points), faces, edges);
+    if (report != nullptr) *report = counts;
+    return result;
+  } catch (const TopologyError& e) {
+    throw TopologyError(name + ": " + e.what());
+  } catch (const InvalidInputError& e) {
+    throw InvalidInputError(name + ": " + e.what());
+  }
+}
+
+// ---- preflight ------------------------------------------------------------------------------
+// Checks for inputs that assimp 5.2 handles badly: OFF and PLY headers declaring more
+// elements than the file could hold (assimp reserves memory for them first: the corpus'
+// invalid/OutOfMemory.off takes minutes and gigabytes), and OBJ face, line or point
+// statements without vertices, which assimp skips silently.
+
+[[noreturn]] void preflightError(const std::string& name, const std::string& reason) {
+  throw IOError(name + ": " + reason);
+}
+
+void checkDeclaredCount(const std::string& name, std::uintmax_t count, const std::string& what,
+                        std::uintmax_t bytesEach, std::uintmax_t size) {
+  if (bytesEach > 0 && count > size / bytesEach)
+    preflightError(name, "the header declares " + std::to_string(count) + " " + what +
+                             ", more than a file of " + std::to_string(size) + " bytes can hold");
+}
+
+void preflightOff(std::istream& in, const std::string& name, std::uintmax_t size) {
+  std::string token;
+  std::vector<std::string> tokens;
+  std::string line;
+  // The keyword and the counts, skipping comments; at most a few lines in.
+  for (int lines = 0; tokens.size() < 4 && lines < 64 && std::getline(in, line); ++lines) {
+    line = line.substr(0, line.find('#'));
+    std::istringstream words(line);
+    while (tokens.size() < 4 && words >> token) tokens.push_back(token);
+  }
+  if (tokens.size() < 3) return;
+  const std::string& keyword = tokens[0];
+  if (keyword.size() < 3 || keyword.compare(keyword.size() - 3, 3, "OFF") != 0) return;
+  if (keyword.find('n') != std::string::npos || keyword.find('4') != std::string::npos) return;
+  if (tokens[1] == "BINARY") return;
+  // An ASCII vertex ("0 0 0\n") or face ("1 0\n") takes at least 4 bytes.
+  try {
+    checkDeclaredCount(name, std::stoull(tokens[1]), "vertices", 4, size);
+    checkDeclaredCount(name, std::stoull(tokens[2]), "faces", 4, size);
+  } catch (const std::logic_error&) {
+    // Not numbers: assimp will say what is wrong.
+  }
+}
+
+void preflightPly(std::istream& in, const std::string& name, std::uintmax_t size) {
+  std::string line;
+  bool ascii = false;
+  std::uintmax_t total = 0;
+  for (int lines = 0; lines < 10000 && std::getline(in, line); ++lines) {
+    std::istringstream words(line);
+    std::string keyword;
+    words >> keyword;
+    if (keyword == "end_header") break;
+    if (keyword == "format") {
+      std::string format;
+      words >> format;
+      ascii = format == "ascii";
+    } else if (keyword == "element") {
+      std::string element;
+      unsigned long long count = 0;
+      if (!(words >> element >> count)) continue;
+      checkDeclaredCount(name, count, element + " elements", 1, size);
+      total += count;
+    }
+  }
+  // An element takes at least one byte in binary and two ("0\n") in ASCII.
+  checkDeclaredCount(name, total, "elements in all", ascii ? 2 : 1, size);
+}
+
+void preflightObj(std::istream& in, const std::string& name) {
+  std::string line;
+  bool continued = false;
+  for (size_t number = 1; std::getline(in, line); ++number) {
+    const bool continues =
+        !line.empty() && (line.back() == '\\' || (line.size() > 1 && line.back() == '\r' &&
+                                                  line[line.size() - 2] == '\\'));
+    if (!continued) {
+      const size_t start = line.find_first_not_of(" \t");
+      if (start != std::string::npos && start + 1 <= line.size()) {
+        const char kind = line[start];
+        const bool statement = (kind == 'f' || kind == 'l' || kind == 'p') &&
+                               (start + 1 == line.size() || line[start + 1] == ' ' ||
+                                line[start + 1] == '\t' || line[start + 1] == '\r');
+        if (statement && !continues &&
+            line.find_first_not_of(" \t\r", start + 1) == std::string::npos)
+          preflightError(name, "line " + std::to_string(number) + ": '" + std::string(1, kind) +
+                                   "' without vertices");
+      }
+    }
+    continued = continues;
+  }
+}
+
+void preflight(std::istream& in, const std::string& ext, const std::string& name,
+               std::uintmax_t size) {
+  if (ext == "off")
+    preflightOff(in, name, size);
+  else if (ext == "ply")
+    preflightPly(in, name, size);
+  else if (ext == "obj")
+    preflightObj(in, name);
+}
+
+/// Runs an assimp read, turning everything it can throw into IOError.
+template <class Read>
+const aiScene* guardedRead(const std::string& name, Read&& read) {
+  try {
+    return read();
+  } catch (const std::bad_alloc&) {
+    throw IOError(name + ": out of memory while reading");
+  } catch (const std::exception& e) {
+    throw IOError(name + ": " + oneLine(e.what()));
+  }
+}
+
+[[noreturn]] void readFailed(const std::string& name, const std::string& ext,
+                             const Assimp::Importer& importer) {
+  const std::string error = oneLine(importer.GetErrorString());
+  const bool known = !ext.empty() && importer.IsExtensionSupported("." + ext);
+  if (!known)
+    throw IOError(name + ": unsupported file format" + (ext.empty() ? "" : " '." + ext + "'"));
+  if (error.find("No suitable reader found") != std::string::npos)
+    throw IOError(name + ": not a ." + ext + " file that assimp can read");
+  throw IOError(name + ": " + error);
+}
+
+// ---- export --------------------------------------------------------------------------------
+
+std::string base64(const void* data, std::size_t size) {
+  static constexpr char kDigits[] =
+      "ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789+/";
+  const auto* bytes = static_cast<const unsigned char*>(data);
+  std::string out;
+  out.reserve((size + 2) / 3 * 4);
+  for (std::size_t i = 0; i < size; i += 3) {
+    const unsigned b0 = bytes[i];
+    const unsigned b1 = i + 1 < size ? bytes[i + 1] : 0;
+    const unsigned b2 = i + 2 < size ? bytes[i + 2] : 0;
+    const unsigned triple = (b0 << 16) | (b1 << 8) | b2;
+    out += kDigits[(triple >> 18) & 63];
+    out += kDigits[(triple >> 12) & 63];
+    out += i + 1 < size ? kDigits[(triple >> 6) & 63] : '=';
+    out += i + 2 < size ? kDigits[triple & 63] : '=';
+  }
+  return out;
+}
+
+struct ExportFormat {
+  std::string id;
+  bool triangles = false;  // the format stores triangles only
+  bool fans = false;       // write polygons as FB_ngon_encoding fans (glTF)
+  bool wires = true;       // the format stores line primitives
+};
+
+ExportFormat exportFormat(const std::string& path) {
+  const std::string ext = lowercaseExtension(path);
+  // objnomtl: a material file would be a second file, not covered by the atomic write.
+  if (ext == "obj") return {"objnomtl"};
+  // Binary PLY keeps the float coordinates exactly (assimp's text parser can be one ulp
+  // off, e.g. for 2.07085699e-16).
+  if (ext == "ply") return {"plyb"};
+  // Binary STL keeps the float coordinates exactly.
+  if (ext == "stl") return {"stlb", true, false, false};
+  if (ext == "gltf") return {"gltf2", true, true, true};
+  if (ext == "glb") return {"glb2", true, true, true};
+  // Other assimp 5.2 exporters are not offered: pbrt crashes, FBX and 3MF write files
+  // assimp cannot read back, assjson's .json would pass for a scene. Collada round-trips.
+  if (ext == "dae") return {"collada"};
+  throw IOError(path + ": unsupported export format" + (ext.empty() ? "" : " '." + ext + "'") +
+                " (use .obj, .ply, .stl, .gltf, .glb or .dae)");
+}
+
+aiMesh* newAiMesh(const Mesh& mesh, const char* name) {
+  auto* out = new aiMesh;
+  out->mName = name;
+  out->mMaterialIndex = 0;
+  out->mNumVertices = static_cast<unsigned>(mesh.numVertices());
+  out->mVertices = new aiVector3D[out->mNumVertices];
+  const Points& x = mesh.positions();
+  for (Index v = 0; v < mesh.numVertices(); ++v)
+    out->mVertices[v] = aiVector3D(static_cast<ai_real>(x(v, 0)), static_cast<ai_real>(x(v, 1)),
+                                   static_cast<ai_real>(x(v, 2)));
+  return out;
+}
+
+void setFace(aiFace& face, std::initializer_list<Index> corners) {
+  face.mNumIndices = static_cast<unsigned>(corners.size());
+  face.mIndices = new unsigned[corners.size()];
+  unsigned k = 0;
+  for (Index c : corners) face.mIndices[k++] = static_cast<unsigned>(c);
+}
+
+/// The faces as one aiMesh: polygons as they are, or (fans) as FB_ngon_encoding
+/// triangle fans, each fan starting at a corner other than the previous fan's start.
+aiMesh* facesMesh(const Mesh& mesh, bool fans, std::vector<unsigned>& rotated) {
+  aiMesh* out = newAiMesh(mesh, "faces");
+  std::vector<std::vector<Index>> polygons;
+  Index previousStart = -1;
+  for (Index f = 0; f < mesh.numFaces(); ++f) {
+    const auto face = mesh.face(f);
+    std::vector<Index> corners(face.begin(), face.end());
+    if (fans && corners.front() == previousStart) {
+      std::rotate(corners.begin(), corners.begin() + 1, corners.end());
+      rotated.push_back(static_cast<unsigned>(f));
+    }
+    previousStart = corners.front();
+    polygons.push_back(std::move(corners));
+  }
+  size_t count = 0;
+  for (const auto& p : polygons) count += fans ? p.size() - 2 : 1;
+  out->mNumFaces = static_cast<unsigned>(count);
+  out->mFaces = new aiFace[count];
+  unsigned types = 0;
+  size_t i = 0;
+  for (const auto& p : polygons) {
+    if (fans) {
+      for (size_t k = 1; k + 1 < p.size(); ++k) setFace(out->mFaces[i++], {p[0], p[k], p[k + 1]});
+      types |= aiPrimitiveType_TRIANGLE | aiPrimitiveType_NGONEncodingFlag;
+    } else {
+      aiFace& face = out->mFaces[i++];
+      face.mNumIndices = static_cast<unsigned>(p.size());
+      face.mIndices = new unsigned[p.size()];
+      std::copy(p.begin(), p.end(), face.mIndices);
+      types |= p.size() == 3 ? aiPrimitiveType_TRIANGLE : aiPrimitiveType_POLYGON;
+    }
+  }
+  out->mPrimitiveTypes = types;
+  return out;
+}
+
+/// Edges that belong to no face (curves, interior edges of solids) as line primitives.
+aiMesh* wiresMesh(const Mesh& mesh) {
+  aiMesh* out = newAiMesh(mesh, "edges");
+  std::vector<Index> wires;
+  for (Index e = 0; e < mesh.numEdges(); ++e)
+    if (mesh.isWireEdge(e)) wires.push_back(e);
+  out->mNumFaces = static_cast<unsigned>(wires.size());
+  out->mFaces = new aiFace[wires.size()];
+  for (size_t i = 0; i < wires.size(); ++i)
+    setFace(out->mFaces[i], {mesh.edge(wires[i])[0], mesh.edge(wires[i])[1]});
+  out->mPrimitiveTypes = aiPrimitiveType_LINE;
+  return out;
+}
+
+/// The mesh's vertices, in order, as point primitives. Some importers (OBJ) renumber
+/// vertices in order of use by faces; welding visits this mesh first, so the file keeps
+/// our vertex order through a round trip.
+aiMesh* pointsMesh(const Mesh& mesh) {
+  aiMesh* out = newAiMesh(mesh, "vertices");
+  out->mNumFaces = static_cast<unsigned>(mesh.numVertices());
+  out->mFaces = new aiFace[out->mNumFaces];
+  for (Index v = 0; v < mesh.numVertices(); ++v) setFace(out->mFaces[v], {v});
+  out->mPrimitiveTypes = aiPrimitiveType_POINT;
+  return out;
+}
+
+std::unique_ptr<aiScene> exportScene(const Mesh& mesh, const ExportFormat& format, bool withPoints,
+                                     std::vector<unsigned>& rotated) {
+  std::vector<aiMesh*> meshes;
+  if (withPoints) meshes.push_back(pointsMesh(mesh));
+  if (mesh.numFaces() > 0) meshes.push_back(facesMesh(mesh, format.fans, rotated));
+  bool hasWires = false;
+  for (Index e = 0; e < mesh.numEdges() && !hasWires; ++e) hasWires = mesh.isWireEdge(e);
+  if (hasWires && format.wires) meshes.push_back(wiresMesh(mesh));
+
+  auto scene = std::make_unique<aiScene>();
+  scene->mNumMaterials = 1;
+  scene->mMaterials = new aiMaterial* [1] { new aiMaterial };
+  scene->mNumMeshes = static_cast<unsigned>(meshes.size());
+  scene->mMeshes = new aiMesh*[meshes.size()];
+  std::copy(meshes.begin(), meshes.end(), scene->mMeshes);
+  scene->mRootNode = new aiNode("zsculpt");
+  scene->mRootNode->mNumMeshes = scene->mNumMeshes;
+  scene->mRootNode->mMeshes = new unsigned[meshes.size()];
+  for (unsigned m = 0; m < scene->mNumMeshes; ++m) scene->mRootNode->mMeshes[m] = m;
+  return scene;
+}
+
+/// Finishes assimp's glTF: buffers in side files (extra blobs) are embedded as data URIs
+/// so that a .gltf is one self-contained file, written atomically; rotated fans are listed
+/// in the extras of the FB_ngon_encoding primitive.
+std::string finishGltf(const std::string& path, const aiExportDataBlob& blob, bool binary,
+                       const std::vector<unsigned>& rotated) {
+  const GltfParts parts =
+      splitGltf(std::string_view(static_cast<const char*>(blob.data), blob.size), binary);
+  auto json = parts.valid ? nlohmann::ordered_json::parse(parts.json, nullptr, false)
+                          : nlohmann::ordered_json(nlohmann::ordered_json::value_t::discarded);
+  if (json.is_discarded() || !json.is_object())
+    throw IOError(path + ": assimp wrote an unreadable glTF file");
+  if (json.contains("buffers") && json["buffers"].is_array()) {
+    for (auto& buffer : json["buffers"]) {
+      if (!buffer.contains("uri") || !buffer["uri"].is_string()) continue;
+      const std::string uri = buffer["uri"].get<std::string>();
+      if (uri.rfind("data:", 0) == 0) continue;
+      const aiExportDataBlob* side = blob.next;
+      const std::string suffix = uri.substr(uri.rfind('.') + 1);
+      while (side != nullptr && suffix != side->name.C_Str()) side = side->next;
+      if (side == nullptr) throw IOError(path + ": assimp did not produce buffer " + uri);
+      buffer["uri"] = "data:application/octet-stream;base64," + base64(side->data, side->size);
+    }
+  }
+  if (!rotated.empty() && json.contains("meshes") && json["meshes"].is_array()) {
+    for (auto& mesh : json["meshes"]) {
+      if (!mesh.contains("primitives") || !mesh["primitives"].is_array()) continue;
+      for (auto& primitive : mesh["primitives"])
+        if (primitive.contains("extensions") &&
+            primitive["extensions"].contains("FB_ngon_encoding"))
+          primitive["extras"][kRotatedFacesKey] = rotated;
+    }
+  }
+  if (binary) return joinGlb(json.dump(), parts.rest);
+  return json.dump(2) + "\n";
+}
+
+}  // namespace
+
+Mesh loadMesh(const std::string& path, MeshLoadReport* report) {
+  std::error_code ec;
+  const auto status = fs::status(path, ec);
+  if (!fs::exists(status)) throw IOError(path + ": no such file");
+  if (fs::is_directory(status)) throw IOError(path + ": is a folder, not a mesh file");
+  const int fd = ::open(path.c_str(), O_RDONLY | O_CLOEXEC);
+  if (fd < 0) throw IOError(path + ": cannot read: " + std::strerror(errno));
+  ::close(fd);
+  // Several assimp importers misbehave on empty input; nothing is to be read from it anyway.
+  if (fs::is_regular_file(status) && fs::file_size(path, ec) == 0)
+    throw IOError(path + ": the file is empty");
+
+  const std::string ext = lowercaseExtension(path);
+  {
+    std::ifstream in(path, std::ios::binary);
+    preflight(in, ext, path, fs::file_size(path, ec));
+  }
+  Assimp::Importer importer;
+  configure(importer);
+  const aiScene* scene = guardedRead(path, [&] { return importer.ReadFile(path, kImportFlags); });
+  if (scene == nullptr) readFailed(path, ext, importer);
+  return meshFromScene(*scene, path, report, gltfPrimitivesOfFile(path, ext));
+}
+
+Mesh loadMeshFromMemory(const void* data, std::size_t size, const std::string& hint,
+                        MeshLoadReport* report) {
+  const std::string name = "<memory>." + hint;
+  if (data == nullptr || size == 0) throw IOError(name + ": the data is empty");
+  std::string ext = hint;
+  std::transform(ext.begin(), ext.end(), ext.begin(),
+                 [](unsigned char c) { return static_cast<char>(std::tolower(c)); });
+  {
+    std::istringstream in(std::string(static_cast<const char*>(data), size));
+    preflight(in, ext, name, size);
+  }
+  Assimp::Importer importer;
+  configure(importer);
+  const aiScene* scene = guardedRead(
+      name, [&] { return importer.ReadFileFromMemory(data, size, kImportFlags, ext.c_str()); });
+  if (scene == nullptr) readFailed(name, ext, importer);
+  std::vector<GltfPrimitive> gltf;
+  if (ext == "gltf" || ext == "glb")
+    gltf = gltfPrimitives(std::string_view(static_cast<const char*>(data), size), ext == "glb");
+  return meshFromScene(*scene, name, report, gltf);
+}
+
+Mesh loadMeshSource(const std::string& source, MeshLoadReport* report) {
+  if (isBuiltinName(source)) {
+    if (report != nullptr) *report = MeshLoadReport{};
+    return makeBuiltin(source);
+  }
+  return loadMesh(source, report);
+}
+
+void saveMesh(const Mesh& mesh, const std::string& path) {
+  const ExportFormat format = exportFormat(path);
+  if (format.triangles && !format.fans && mesh.numFaces() == 0)
+    throw IOError(path + ": this format stores triangles only and the mesh has no faces");
+  // OBJ importers number vertices as faces use them, and glTF drops those no face uses:
+  // a leading point per vertex fixes the order. PLY keeps its vertex list as it is; STL
+  // has none.
+  const bool withPoints = format.id == "objnomtl" || format.fans;
+  std::vector<unsigned> rotated;
+  const auto scene = exportScene(mesh, format, withPoints, rotated);
+  Assimp::Exporter exporter;
+  // STL: assimp's triangulation handles concave polygons, unlike a plain fan.
+  const unsigned preprocessing = format.triangles && !format.fans ? aiProcess_Triangulate : 0u;
+  const aiExportDataBlob* blob = exporter.ExportToBlob(scene.get(), format.id, preprocessing);
+  if (blob == nullptr) throw IOError(path + ": " + oneLine(exporter.GetErrorString()));
+  std::string embedded;
+  const char* bytes = static_cast<const char*>(blob->data);
+  std::size_t size = blob->size;
+  if (format.fans) {
+    embedded = finishGltf(path, *blob, format.id == "glb2", rotated);
+    bytes = embedded.data();
+    size = embedded.size();
+  }
+  writeFileAtomically(
+      path, [&](std::ostream& out) { out.write(bytes, static_cast<std::streamsize>(size)); });
+}
+
+}  // namespace zsculpt::io

@@ -1,0 +1,1007 @@
+// io module: mesh import/export through assimp, atomic writes, state files, scene files.
+
+#include <gtest/gtest.h>
+#include <unistd.h>
+
+#include <cmath>
+#include <cstring>
+#include <filesystem>
+#include <fstream>
+#include <limits>
+#include <random>
+#include <set>
+#include <sstream>
+
+#include "zsculpt/core/errors.h"
+#include "zsculpt/io/atomic_file.h"
+#include "zsculpt/io/mesh_io.h"
+#include "zsculpt/io/scene.h"
+#include "zsculpt/io/state_io.h"
+#include "zsculpt/mesh/builtin.h"
+
+using namespace zsculpt;
+using namespace zsculpt::io;
+namespace fs = std::filesystem;
+
+namespace {
+
+const fs::path kData = fs::path(ZSCULPT_TEST_DATA_DIR) / "io";
+const fs::path kCorpus = "/usr/share/assimp/models";
+
+std::string data(const std::string& name) {
+  return (kData / name).string();
+}
+std::string corpus(const std::string& name) {
+  return (kCorpus / name).string();
+}
+
+/// A fresh folder per test, removed afterwards.
+class TempDir : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    const auto* info = ::testing::UnitTest::GetInstance()->current_test_info();
+    dir_ = fs::temp_directory_path() /
+           ("zsculpt_test_io_" + std::to_string(::getpid()) + "_" + info->name());
+    fs::remove_all(dir_);
+    fs::create_directories(dir_);
+  }
+  void TearDown() override { fs::remove_all(dir_); }
+  [[nodiscard]] std::string path(const std::string& name) const { return (dir_ / name).string(); }
+  /// Every entry of the folder, hidden ones included.
+  [[nodiscard]] std::set<std::string> entries() const {
+    std::set<std::string> names;
+    for (const auto& e : fs::directory_iterator(dir_)) names.insert(e.path().filename().string());
+    return names;
+  }
+  fs::path dir_;
+};
+
+std::string readText(const std::string& path) {
+  std::ifstream in(path, std::ios::binary);
+  std::ostringstream s;
+  s << in.rdbuf();
+  return s.str();
+}
+
+void writeText(const std::string& path, const std::string& text) {
+  std::ofstream out(path, std::ios::binary);
+  out << text;
+}
+
+/// The message of the zsculpt::Error that `f` throws (fails if it throws none).
+template <class F>
+std::string errorOf(F&& f) {
+  try {
+    f();
+  } catch (const Error& e) {
+    return e.what();
+  }
+  ADD_FAILURE() << "no zsculpt::Error thrown";
+  return {};
+}
+
+/// Errors that reach users are one line naming the file first.
+void expectUserError(const std::string& message, const std::string& file) {
+  EXPECT_EQ(message.rfind(file + ": ", 0), 0u) << message;
+  EXPECT_EQ(message.find('\n'), std::string::npos) << message;
+  EXPECT_GT(message.size(), file.size() + 2) << message;
+}
+
+std::vector<std::vector<Index>> facesOf(const Mesh& mesh) {
+  std::vector<std::vector<Index>> faces;
+  for (Index f = 0; f < mesh.numFaces(); ++f)
+    faces.emplace_back(mesh.face(f).begin(), mesh.face(f).end());
+  return faces;
+}
+
+/// Positions rounded to float, as the file formats store them.
+Points asFloats(const Points& x) {
+  return x.cast<float>().cast<double>();
+}
+
+Index eulerCharacteristic(const Mesh& m) {
+  return m.numVertices() - m.numEdges() + m.numFaces();
+}
+
+/// Positions as a file storing floats gives them back: rounded to float, and for text
+/// formats read by assimp's own number parser, which can be one float ulp off.
+void expectFloatPositions(const Points& back, const Points& original, bool exact) {
+  ASSERT_EQ(back.rows(), original.rows());
+  if (exact) {
+    EXPECT_EQ(back, asFloats(original));
+    return;
+  }
+  for (Index v = 0; v < back.rows(); ++v)
+    for (int c = 0; c < 3; ++c)
+      EXPECT_LE(std::abs(back(v, c) - original(v, c)), std::ldexp(std::abs(original(v, c)), -22))
+          << "vertex " << v << " coordinate " << c;
+}
+
+}  // namespace
+
+// ---- import ---------------------------------------------------------------------------------
+
+TEST(MeshImport, CorpusBoxObjWeldsToACube) {
+  ASSERT_TRUE(fs::exists(kCorpus)) << "assimp-testmodels is not installed (scripts install it)";
+  MeshLoadReport report;
+  const Mesh box = loadMesh(corpus("OBJ/box.obj"), &report);
+  EXPECT_EQ(box.numVertices(), 8);
+  EXPECT_EQ(box.numEdges(), 12);
+  EXPECT_EQ(box.numFaces(), 6);
+  // assimp delivers one vertex per face corner: 24, of which 16 weld into others.
+  EXPECT_EQ(report.verticesWelded, 16);
+  EXPECT_EQ(report.degenerateFacesDropped, 0);
+  EXPECT_TRUE(box.boundaryEdges().empty());
+  EXPECT_TRUE(box.nonManifoldEdges().empty());
+  for (Index f = 0; f < box.numFaces(); ++f) EXPECT_EQ(box.face(f).size(), 4u);
+}
+
+TEST(MeshImport, VerticesKeepTheOrderOfFirstOccurrence) {
+  // box_quads.obj: the first face is 1 4 3 2, the second 5 6 7 8 (OBJ numbering).
+  const Mesh box = loadMesh(data("box_quads.obj"));
+  ASSERT_EQ(box.numVertices(), 8);
+  const std::vector<Vec3> expected = {{0, 0, 0}, {0, 1, 0}, {1, 1, 0}, {1, 0, 0},
+                                      {0, 0, 1}, {1, 0, 1}, {1, 1, 1}, {0, 1, 1}};
+  for (Index v = 0; v < 8; ++v) EXPECT_EQ(Vec3(box.positions().row(v)), expected[v]) << v;
+  EXPECT_EQ(facesOf(box)[0], (std::vector<Index>{0, 1, 2, 3}));
+  EXPECT_EQ(facesOf(box)[1], (std::vector<Index>{4, 5, 6, 7}));
+}
+
+TEST(MeshImport, WeldsAcrossMeshesOfAFile) {
+  MeshLoadReport report;
+  const Mesh strip = loadMesh(data("two_objects.obj"), &report);
+  EXPECT_EQ(report.meshesMerged, 2);
+  EXPECT_EQ(strip.numVertices(), 6);
+  EXPECT_EQ(strip.numEdges(), 7);
+  EXPECT_EQ(strip.numFaces(), 2);
+  EXPECT_EQ(strip.numComponents(), 1);
+  EXPECT_EQ(strip.edgeFaces(strip.findEdge(1, 2)).size(), 2u);  // the shared edge x = 1
+}
+
+TEST(MeshImport, AppliesNodeTransformsBeforeWelding) {
+  // One square instanced three times: at the origin, by a node matrix (x + 1), and by
+  // two nested translations (x + 1 + 1).
+  MeshLoadReport report;
+  const Mesh strip = loadMesh(data("instances.dae"), &report);
+  EXPECT_EQ(report.meshesMerged, 3);
+  EXPECT_EQ(strip.numVertices(), 8);
+  EXPECT_EQ(strip.numEdges(), 10);
+  EXPECT_EQ(strip.numFaces(), 3);
+  const BoundingBox box = strip.boundingBox();
+  EXPECT_EQ(box.min, Vec3(0, 0, 0));
+  EXPECT_EQ(box.max, Vec3(3, 1, 0));
+}
+
+TEST(MeshImport, SignedZerosWeldTogether) {
+  // Without folding -0 into 0, the two triangles would not share an edge and Mesh would
+  // reject the "coincident" vertices as a zero-length spring.
+  const Mesh mesh = loadMesh(data("signed_zero.obj"));
+  EXPECT_EQ(mesh.numVertices(), 4);
+  EXPECT_EQ(mesh.numFaces(), 2);
+  EXPECT_EQ(mesh.numEdges(), 5);
+}
+
+TEST(MeshImport, LinesBecomeEdgesAndPointsAreDropped) {
+  MeshLoadReport report;
+  const Mesh curve = loadMesh(data("curve.obj"), &report);
+  EXPECT_EQ(curve.numVertices(), 4);
+  EXPECT_EQ(curve.numEdges(), 3);
+  EXPECT_EQ(curve.numFaces(), 0);
+  EXPECT_EQ(report.pointsAndLinesDropped, 1);
+  EXPECT_EQ(report.unusedVerticesDropped, 1);  // the point's vertex
+  for (Index e = 0; e < curve.numEdges(); ++e) EXPECT_TRUE(curve.isWireEdge(e));
+}
+
+TEST(MeshImport, FacesRepeatingAVertexAreRepairedOrDropped) {
+  MeshLoadReport report;
+  const Mesh mesh = loadMesh(data("repeated_vertex.obj"), &report);
+  // 1 2 3 kept; 2 5 5 3 becomes the triangle 2 5 3; 1 3 1 4 and 1 2 1 are dropped.
+  EXPECT_EQ(mesh.numFaces(), 2);
+  EXPECT_EQ(report.degenerateFacesDropped, 2);
+  EXPECT_EQ(mesh.face(1).size(), 3u);
+  EXPECT_EQ(mesh.numVertices(), 4);  // (0, 1, 0) was used by a dropped face only
+  EXPECT_EQ(report.unusedVerticesDropped, 1);
+}
+
+TEST(MeshImport, CoincidentVerticesNeverMakeAZeroLengthSpring) {
+  MeshLoadReport report;
+  const Mesh mesh = loadMesh(data("coincident.obj"), &report);
+  EXPECT_EQ(mesh.numVertices(), 3);
+  EXPECT_EQ(mesh.numFaces(), 1);
+  EXPECT_EQ(report.degenerateFacesDropped, 1);
+  for (Index e = 0; e < mesh.numEdges(); ++e) {
+    const auto [a, b] = mesh.edge(e);
+    EXPECT_GT((mesh.positions().row(a) - mesh.positions().row(b)).norm(), 0.0);
+  }
+  // A line between two coincident vertices is all the file has: an empty mesh.
+  const std::string message = errorOf([] { loadMesh(data("coincident_only.obj")); });
+  expectUserError(message, data("coincident_only.obj"));
+  EXPECT_NE(message.find("empty mesh"), std::string::npos) << message;
+}
+
+TEST(MeshImport, BadFilesGiveOneLineErrorsNamingTheFile) {
+  struct Case {
+    std::string path;
+    std::string reason;  // a fragment of the message
+  };
+  const std::vector<Case> cases = {
+      {data("missing.obj"), "no such file"},
+      {kData.string(), "is a folder"},
+      {corpus("invalid/empty.obj"), "empty"},
+      {data("not_a_mesh.xyz"), "unsupported file format"},
+      {data("nan.obj"), "non-finite"},
+      {data("infinite.obj"), "non-finite"},
+      {data("index_out_of_range.obj"), "out of range"},
+      {data("all_degenerate.obj"), "empty mesh"},
+      {data("garbage.obj"), "empty mesh"},
+      {data("empty_face.obj"), "line 6"},
+      {data("huge_count.off"), "declares 4000000000"},
+      {data("huge_count.ply"), "declares 3000000000"},
+      {corpus("PLY/points.ply"), "empty mesh"},
+  };
+  for (const Case& c : cases) {
+    const std::string message = errorOf([&] { loadMesh(c.path); });
+    expectUserError(message, c.path);
+    EXPECT_NE(message.find(c.reason), std::string::npos) << c.path << ": " << message;
+  }
+  EXPECT_THROW(loadMesh(data("missing.obj")), IOError);
+  EXPECT_THROW(loadMesh(data("not_a_mesh.xyz")), IOError);
+  EXPECT_THROW(loadMesh(data("nan.obj")), InvalidInputError);
+}
+
+TEST(MeshImport, UnreadableFileIsAnError) {
+  if (::geteuid() == 0) GTEST_SKIP() << "root reads every file";
+  const fs::path dir =
+      fs::temp_directory_path() / ("zsculpt_unreadable_" + std::to_string(getpid()));
+  fs::create_directories(dir);
+  const std::string file = (dir / "box.obj").string();
+  fs::copy_file(data("box_quads.obj"), file, fs::copy_options::overwrite_existing);
+  fs::permissions(file, fs::perms::none);
+  const std::string message = errorOf([&] { loadMesh(file); });
+  fs::remove_all(dir);
+  expectUserError(message, file);
+  EXPECT_NE(message.find("cannot read"), std::string::npos) << message;
+}
+
+TEST(MeshImport, EveryFileOfTheInvalidCorpusIsAnErrorNotACrash) {
+  ASSERT_TRUE(fs::exists(kCorpus / "invalid"));
+  int files = 0;
+  for (const auto& entry : fs::directory_iterator(kCorpus / "invalid")) {
+    const std::string path = entry.path().string();
+    ++files;
+    const std::string message = errorOf([&] { loadMesh(path); });
+    expectUserError(message, path);
+  }
+  EXPECT_GE(files, 15);
+}
+
+TEST(MeshImport, TheSameModelInDifferentFormatsGivesTheSameMesh) {
+  // Wuson (a quad-dominant character) in OBJ, OFF and PLY; Spider in OBJ and in ASCII
+  // and binary STL (triangles): each set must agree once welded.
+  for (const auto& set : std::vector<std::vector<std::string>>{
+           {"OBJ/WusonOBJ.obj", "OFF/Wuson.off", "PLY/Wuson.ply"},
+           {"OBJ/spider.obj", "STL/Spider_ascii.stl", "STL/Spider_binary.stl"}}) {
+    std::vector<Mesh> meshes;
+    for (const auto& name : set) meshes.push_back(loadMesh(corpus(name)));
+    for (size_t i = 0; i < meshes.size(); ++i) {
+      SCOPED_TRACE(set[i]);
+      EXPECT_GT(meshes[i].numFaces(), 1000);
+      EXPECT_EQ(meshes[i].numVertices(), meshes[0].numVertices());
+      EXPECT_EQ(meshes[i].numEdges(), meshes[0].numEdges());
+      EXPECT_EQ(meshes[i].numFaces(), meshes[0].numFaces());
+      EXPECT_TRUE(meshes[i].isolatedVertices().empty());
+      EXPECT_EQ(meshes[i].boundaryEdges().size(), meshes[0].boundaryEdges().size());
+      EXPECT_EQ(meshes[i].nonManifoldEdges().size(), meshes[0].nonManifoldEdges().size());
+      EXPECT_EQ(meshes[i].numComponents(), meshes[0].numComponents());
+    }
+  }
+}
+
+TEST(MeshImport, RealModelsInSeveralFormatsAreSane) {
+  // Closed cubes: V - E + F = 2, no boundary, whatever the format and its triangulation.
+  for (const std::string name :
+       {"OFF/Cube.off", "PLY/cube.ply", "PLY/cube_binary.ply",
+        "glTF2/BoxTextured-glTF-Binary/BoxTextured.glb", "glTF2/BoxTextured-glTF/BoxTextured.gltf",
+        "FBX/box.fbx", "Collada/cube_triangulate.dae"}) {
+    SCOPED_TRACE(name);
+    const Mesh cube = loadMesh(corpus(name));
+    EXPECT_EQ(cube.numVertices(), 8);
+    EXPECT_EQ(eulerCharacteristic(cube), 2);
+    EXPECT_TRUE(cube.boundaryEdges().empty());
+    EXPECT_EQ(cube.numComponents(), 1);
+  }
+  const Mesh quadAndTriangle = loadMesh(data("quad.off"));
+  EXPECT_EQ(quadAndTriangle.numFaces(), 2);
+  EXPECT_EQ(quadAndTriangle.face(0).size(), 4u);
+  EXPECT_EQ(quadAndTriangle.face(1).size(), 3u);
+}
+
+TEST(MeshImport, FromMemory) {
+  const std::string obj = readText(data("box_quads.obj"));
+  const Mesh box = loadMeshFromMemory(obj.data(), obj.size(), "obj");
+  EXPECT_EQ(box.numVertices(), 8);
+  EXPECT_EQ(box.numFaces(), 6);
+  EXPECT_THROW(loadMeshFromMemory(obj.data(), 0, "obj"), IOError);
+  const std::string junk = "\x01\x02 not a model";
+  EXPECT_THROW(loadMeshFromMemory(junk.data(), junk.size(), "ply"), Error);
+  const std::string off = readText(data("huge_count.off"));
+  EXPECT_THROW(loadMeshFromMemory(off.data(), off.size(), "off"), IOError);
+}
+
+TEST(MeshImport, SourceIsABuiltinOrAFile) {
+  EXPECT_EQ(loadMeshSource("builtin:torus:6:4").numVertices(), 24);
+  EXPECT_EQ(loadMeshSource(data("box_quads.obj")).numVertices(), 8);
+  EXPECT_THROW(loadMeshSource("builtin:teapot"), InvalidInputError);
+}
+
+// ---- export ---------------------------------------------------------------------------------
+
+class MeshExport : public TempDir {};
+
+TEST_F(MeshExport, RoundTripKeepsPositionsAndTopology) {
+  for (const auto& [name, mesh] : std::vector<std::pair<std::string, Mesh>>{
+           {"torus", makeTorus(10, 10)}, {"grid", makeGrid(18)}, {"fins", makeFins()}}) {
+    for (const std::string ext : {"obj", "ply", "gltf", "glb"}) {
+      SCOPED_TRACE(name + "." + ext);
+      const std::string file = path(name + "." + ext);
+      saveMesh(mesh, file);
+      MeshLoadReport report;
+      const Mesh back = loadMesh(file, &report);
+      ASSERT_EQ(back.numVertices(), mesh.numVertices());
+      EXPECT_EQ(back.numEdges(), mesh.numEdges());
+      EXPECT_EQ(back.numFaces(), mesh.numFaces());
+      // Same vertex order and the same faces, corner for corner: indices written into
+      // scenes stay valid for a saved mesh.
+      expectFloatPositions(back.positions(), mesh.positions(), ext != "obj");
+      EXPECT_EQ(facesOf(back), facesOf(mesh));
+      EXPECT_EQ(back.edges(), mesh.edges());
+      EXPECT_EQ(report.degenerateFacesDropped, 0);
+    }
+  }
+  EXPECT_EQ(entries(), (std::set<std::string>{"torus.obj", "torus.ply", "torus.gltf", "torus.glb",
+                                              "grid.obj", "grid.ply", "grid.gltf", "grid.glb",
+                                              "fins.obj", "fins.ply", "fins.gltf", "fins.glb"}));
+}
+
+TEST_F(MeshExport, CurvesAndSolidsKeepTheirEdges) {
+  for (const auto& [name, mesh] : std::vector<std::pair<std::string, Mesh>>{
+           {"helix", makeHelix(20)}, {"lattice", makeLattice(3)}}) {
+    for (const std::string ext : {"obj", "ply", "gltf", "glb"}) {
+      SCOPED_TRACE(name + "." + ext);
+      const std::string file = path(name + "." + ext);
+      saveMesh(mesh, file);
+      const Mesh back = loadMesh(file);
+      EXPECT_EQ(back.numVertices(), mesh.numVertices());
+      EXPECT_EQ(back.numEdges(), mesh.numEdges());
+      EXPECT_EQ(back.numFaces(), mesh.numFaces());
+      expectFloatPositions(back.positions(), mesh.positions(), ext != "obj");
+    }
+  }
+}
+
+TEST_F(MeshExport, StlIsATriangleSoupThatReweldsToTheSameVertices) {
+  for (const auto& [name, mesh] :
+       std::vector<std::pair<std::string, Mesh>>{{"torus", makeTorus(10, 10)},
+                                                 {"grid", makeGrid(18)},
+                                                 {"dodecahedron", makeDodecahedron()}}) {
+    SCOPED_TRACE(name);
+    const std::string file = path(name + ".stl");
+    saveMesh(mesh, file);
+    const Mesh back = loadMesh(file);
+    EXPECT_EQ(back.numVertices(), mesh.numVertices());
+    Index triangles = 0;
+    for (Index f = 0; f < mesh.numFaces(); ++f) triangles += mesh.face(f).size() - 2;
+    EXPECT_EQ(back.numFaces(), triangles);
+    EXPECT_EQ(eulerCharacteristic(back), eulerCharacteristic(mesh));
+    // The same set of positions (STL does not keep the order).
+    std::set<std::array<double, 3>> a, b;
+    const Points x = asFloats(mesh.positions());
+    for (Index v = 0; v < mesh.numVertices(); ++v) {
+      a.insert({x(v, 0), x(v, 1), x(v, 2)});
+      b.insert({back.positions()(v, 0), back.positions()(v, 1), back.positions()(v, 2)});
+    }
+    EXPECT_EQ(a, b);
+  }
+  const std::string message = errorOf([&] { saveMesh(makeHelix(8), path("helix.stl")); });
+  expectUserError(message, path("helix.stl"));
+  EXPECT_FALSE(fs::exists(path("helix.stl")));
+}
+
+TEST_F(MeshExport, ColladaKeepsTheTopology) {
+  const Mesh torus = makeTorus(8, 5);
+  saveMesh(torus, path("torus.dae"));
+  const Mesh back = loadMesh(path("torus.dae"));
+  EXPECT_EQ(back.numVertices(), torus.numVertices());
+  EXPECT_EQ(back.numEdges(), torus.numEdges());
+  EXPECT_EQ(back.numFaces(), torus.numFaces());
+}
+
+TEST_F(MeshExport, GltfIsOneSelfContainedFile) {
+  saveMesh(makeTorus(6, 4), path("torus.gltf"));
+  EXPECT_EQ(entries(), std::set<std::string>{"torus.gltf"});
+  const std::string text = readText(path("torus.gltf"));
+  EXPECT_NE(text.find("data:application/octet-stream;base64,"), std::string::npos);
+  // Copied elsewhere it still loads: nothing refers to a side file.
+  fs::create_directories(dir_ / "copy");
+  fs::copy_file(path("torus.gltf"), path("copy/moved.gltf"));
+  EXPECT_EQ(loadMesh(path("copy/moved.gltf")).numFaces(), 24);
+}
+
+TEST_F(MeshExport, FailuresLeaveNothingBehind) {
+  const std::string missing = path("no/such/folder/torus.obj");
+  const std::string message = errorOf([&] { saveMesh(makeTorus(), missing); });
+  expectUserError(message, missing);
+  EXPECT_NE(message.find("No such file or directory"), std::string::npos) << message;
+  const std::string unknown = path("torus.fbx");
+  const std::string message2 = errorOf([&] { saveMesh(makeTorus(), unknown); });
+  expectUserError(message2, unknown);
+  EXPECT_NE(message2.find("unsupported export format"), std::string::npos) << message2;
+  EXPECT_TRUE(entries().empty());
+}
+
+// ---- atomic files ---------------------------------------------------------------------------
+
+class AtomicFile : public TempDir {};
+
+TEST_F(AtomicFile, WritesAndReplaces) {
+  const std::string file = path("a.txt");
+  writeFileAtomically(file, [](std::ostream& out) { out << "first\n"; });
+  EXPECT_EQ(readText(file), "first\n");
+  writeFileAtomically(file, [](std::ostream& out) { out << "second\n"; });
+  EXPECT_EQ(readText(file), "second\n");
+  // Larger than the stream's buffer.
+  const std::string big(300000, 'x');
+  writeFileAtomically(file, [&](std::ostream& out) { out << big; });
+  EXPECT_EQ(readText(file), big);
+  EXPECT_EQ(entries(), std::set<std::string>{"a.txt"});
+}
+
+TEST_F(AtomicFile, AThrowingWriterLeavesTheOldFileIntact) {
+  const std::string file = path("a.txt");
+  writeText(file, "old contents\n");
+  EXPECT_THROW(writeFileAtomically(file,
+                                   [](std::ostream& out) {
+                                     out << "half of the new";
+                                     throw std::runtime_error("writer failed");
+                                   }),
+               std::runtime_error);
+  EXPECT_EQ(readText(file), "old contents\n");
+  EXPECT_THROW(writeFileAtomicallyVia(file,
+                                      [](const std::string& temporary) {
+                                        writeText(temporary, "half");
+                                        throw IOError("library failed");
+                                      }),
+               IOError);
+  EXPECT_EQ(readText(file), "old contents\n");
+  EXPECT_EQ(entries(), std::set<std::string>{"a.txt"});
+}
+
+TEST_F(AtomicFile, ViaWritesThroughATemporaryInTheSameFolder) {
+  const std::string file = path("image.png");
+  std::string seen;
+  writeFileAtomicallyVia(file, [&](const std::string& temporary) {
+    seen = temporary;
+    EXPECT_TRUE(fs::exists(temporary));  // reserved before the library opens it
+    writeText(temporary, "png bytes");
+  });
+  EXPECT_EQ(fs::path(seen).parent_path(), dir_);
+  EXPECT_EQ(fs::path(seen).filename().string().front(), '.');
+  EXPECT_EQ(fs::path(seen).extension(), ".png");
+  EXPECT_EQ(readText(file), "png bytes");
+  EXPECT_EQ(entries(), std::set<std::string>{"image.png"});
+}
+
+TEST_F(AtomicFile, MissingOrUnwritableFoldersGiveClearErrors) {
+  const std::string missing = path("missing/a.txt");
+  std::string message =
+      errorOf([&] { writeFileAtomically(missing, [](std::ostream& out) { out << "x"; }); });
+  expectUserError(message, missing);
+  EXPECT_NE(message.find("No such file or directory"), std::string::npos) << message;
+
+  writeText(path("file"), "a file, not a folder");
+  const std::string underFile = path("file/a.txt");
+  message = errorOf([&] { writeFileAtomically(underFile, [](std::ostream& out) { out << "x"; }); });
+  expectUserError(message, underFile);
+  EXPECT_NE(message.find("Not a directory"), std::string::npos) << message;
+
+  const std::string folder = path("sub");
+  fs::create_directories(folder);
+  message = errorOf([&] { writeFileAtomically(folder, [](std::ostream& out) { out << "x"; }); });
+  expectUserError(message, folder);
+  EXPECT_NE(message.find("is a directory"), std::string::npos) << message;
+
+  if (::geteuid() != 0) {  // root may write anywhere
+    const std::string locked = path("locked");
+    fs::create_directories(locked);
+    fs::permissions(locked, fs::perms::owner_read | fs::perms::owner_exec);
+    const std::string inLocked = locked + "/a.txt";
+    message =
+        errorOf([&] { writeFileAtomically(inLocked, [](std::ostream& out) { out << "x"; }); });
+    expectUserError(message, inLocked);
+    EXPECT_NE(message.find("Permission denied"), std::string::npos) << message;
+    EXPECT_THROW(ensureWritableDirectory(locked), IOError);
+    fs::permissions(locked, fs::perms::owner_all);
+    EXPECT_TRUE(fs::is_empty(locked));
+  }
+  std::set<std::string> expected = {"file", "sub"};
+  if (::geteuid() != 0) expected.insert("locked");
+  EXPECT_EQ(entries(), expected);
+}
+
+TEST_F(AtomicFile, EnsureWritableDirectory) {
+  const std::string nested = path("a/b/c");
+  ensureWritableDirectory(nested);
+  EXPECT_TRUE(fs::is_directory(nested));
+  writeText(path("file"), "x");
+  const std::string message = errorOf([&] { ensureWritableDirectory(path("file")); });
+  expectUserError(message, path("file"));
+  EXPECT_THROW(ensureWritableDirectory(path("file/below")), IOError);
+}
+
+// ---- state files ----------------------------------------------------------------------------
+
+class StateFile : public TempDir {};
+
+TEST_F(StateFile, RoundTripIsBitIdentical) {
+  std::mt19937_64 random(12345);
+  std::uniform_real_distribution<double> uniform(-1.0, 1.0);
+  const Index n = 200;
+  State state{Points(n, 3), Points(n, 3), 0.0};
+  for (Index v = 0; v < n; ++v)
+    for (int c = 0; c < 3; ++c) {
+      state.position(v, c) = uniform(random) * std::pow(10.0, static_cast<int>(random() % 40) - 20);
+      state.velocity(v, c) = uniform(random);
+    }
+  // Awkward values: signed zero, subnormal, extremes, a value that needs all 17 digits.
+  state.position.row(0) << -0.0, std::numeric_limits<double>::denorm_min(), 0.1;
+  state.velocity.row(0) << std::numeric_limits<double>::max(),
+      std::numeric_limits<double>::lowest(), 1.0 / 3.0;
+  const std::string file = path("state.csv");
+  saveState(state, file);
+  EXPECT_EQ(readText(file).substr(0, 15), "x,y,z,vx,vy,vz\n");
+  const State back = loadState(file, n);
+  ASSERT_EQ(back.position.rows(), n);
+  EXPECT_EQ(std::memcmp(back.position.data(), state.position.data(), sizeof(double) * 3 * n), 0);
+  EXPECT_EQ(std::memcmp(back.velocity.data(), state.velocity.data(), sizeof(double) * 3 * n), 0);
+  EXPECT_TRUE(std::signbit(back.position(0, 0)));
+}
+
+TEST_F(StateFile, AcceptsCrlfAndSpaces) {
+  writeText(path("s.csv"), "x,y,z,vx,vy,vz\r\n1, 2 ,3,+4,5e-1,-6\r\n\r\n");
+  const State s = loadState(path("s.csv"), 1);
+  EXPECT_EQ(Vec3(s.position.row(0)), Vec3(1, 2, 3));
+  EXPECT_EQ(Vec3(s.velocity.row(0)), Vec3(4, 0.5, -6));
+}
+
+TEST_F(StateFile, BadFilesNameTheFileAndLine) {
+  struct Case {
+    std::string text;
+    Index vertices;
+    std::string reason;
+  };
+  const std::vector<Case> cases = {
+      {"", 1, "empty file"},
+      {"x,y,z\n1,2,3\n", 1, "line 1: expected the header"},
+      {"x,y,z,vx,vy,vz\n1,2,3,4,5\n", 1, "line 2: 5 columns, expected 6"},
+      {"x,y,z,vx,vy,vz\n1,2,3,4,5,6,7\n", 1, "line 2: more than 6 columns"},
+      {"x,y,z,vx,vy,vz\n1,2,3,4,5,6\n1,2,x,4,5,6\n", 2, "line 3: column 3: 'x' is not a number"},
+      {"x,y,z,vx,vy,vz\n1,2,3,4,,6\n", 1, "line 2: column 5"},
+      {"x,y,z,vx,vy,vz\n1,2,nan,4,5,6\n", 1, "line 2: column 3: nan is not finite"},
+      {"x,y,z,vx,vy,vz\n1,2,3,inf,5,6\n", 1, "not finite"},
+      {"x,y,z,vx,vy,vz\n1,2,3,1e999,5,6\n", 1, "not finite"},
+      {"x,y,z,vx,vy,vz\n1,2,3,4,5,6\n", 2, "1 rows, expected 2"},
+  };
+  for (const Case& c : cases) {
+    const std::string file = path("bad.csv");
+    writeText(file, c.text);
+    const std::string message = errorOf([&] { loadState(file, c.vertices); });
+    expectUserError(message, file);
+    EXPECT_NE(message.find(c.reason), std::string::npos) << message;
+  }
+  expectUserError(errorOf([&] { loadState(path("missing.csv"), 1); }), path("missing.csv"));
+}
+
+TEST_F(StateFile, NonFiniteStatesAreNotWritten) {
+  State state = State::atRest(makeGrid(3));
+  state.velocity(4, 1) = std::numeric_limits<double>::quiet_NaN();
+  const std::string message = errorOf([&] { saveState(state, path("s.csv")); });
+  expectUserError(message, path("s.csv"));
+  EXPECT_NE(message.find("vertex 4"), std::string::npos) << message;
+  EXPECT_TRUE(entries().empty());
+}
+
+// ---- scene files ----------------------------------------------------------------------------
+
+namespace {
+
+/// The first ```json block of docs/scene-format.md: the documented example must stay valid.
+std::string documentedExample() {
+  const std::string doc = readText(std::string(ZSCULPT_SOURCE_DIR) + "/docs/scene-format.md");
+  const auto start = doc.find("```json\n");
+  const auto end = doc.find("```", start + 8);
+  if (start == std::string::npos || end == std::string::npos) return {};
+  return doc.substr(start + 8, end - start - 8);
+}
+
+void expectSameUniform(const UniformProperties& a, const UniformProperties& b) {
+  EXPECT_EQ(a.mass, b.mass);
+  EXPECT_EQ(a.damping, b.damping);
+  EXPECT_EQ(a.stiffness, b.stiffness);
+  EXPECT_EQ(a.angularStiffness, b.angularStiffness);
+  EXPECT_EQ(a.rigidity, b.rigidity);
+  EXPECT_EQ(a.restLengthScale, b.restLengthScale);
+  EXPECT_EQ(a.stiffnessCap, b.stiffnessCap);
+  EXPECT_EQ(a.gravity, b.gravity);
+}
+
+void expectSameScene(const SceneDescription& a, const SceneDescription& b) {
+  EXPECT_EQ(a.description, b.description);
+  EXPECT_EQ(a.mesh, b.mesh);
+  expectSameUniform(a.properties, b.properties);
+  EXPECT_TRUE(a.overrides == b.overrides);
+  EXPECT_TRUE(a.constraints == b.constraints);
+  EXPECT_TRUE(a.forces == b.forces);
+  EXPECT_TRUE(a.torques == b.torques);
+  EXPECT_TRUE(a.edits == b.edits);
+  EXPECT_TRUE(a.simulation == b.simulation);
+  EXPECT_TRUE(a.camera == b.camera);
+}
+
+const char* kMinimal = R"({"mesh": "builtin:torus"})";
+
+/// kMinimal with `member` added at the top level.
+std::string with(const std::string& member) {
+  return R"({"mesh": "builtin:torus", )" + member + "}";
+}
+
+}  // namespace
+
+class SceneFile : public TempDir {};
+
+TEST_F(SceneFile, TheDocumentedExampleIsValid) {
+  const std::string example = documentedExample();
+  ASSERT_FALSE(example.empty());
+  const SceneDescription scene = parseScene(example, "example.json");
+  EXPECT_EQ(scene.mesh, "builtin:torus");
+  EXPECT_EQ(scene.properties.mass, 0.5);
+  EXPECT_EQ(scene.properties.gravity, Vec3(0, 0, -9.81));
+  EXPECT_EQ(scene.properties.stiffnessCap, 50.0);
+  EXPECT_EQ(scene.overrides.size(), 3u);
+  EXPECT_EQ(scene.constraints.size(), 3u);
+  EXPECT_FALSE(scene.constraints[0].target.has_value());
+  EXPECT_EQ(scene.forces.at(0).end, 0.5);
+  EXPECT_TRUE(std::isinf(scene.torques.at(0).end));
+  ASSERT_EQ(scene.edits.size(), 5u);
+  EXPECT_EQ(scene.edits[0].kind, EditKind::Brush);
+  EXPECT_EQ(scene.edits[0].centerVertex, 30);
+  EXPECT_EQ(scene.edits[1].centerPoint, Vec3(2, 0, 1));
+  EXPECT_EQ(scene.edits[1].brush.mode, BrushMode::Multiply);
+  EXPECT_EQ(scene.edits[1].brush.distance, BrushDistance::Euclidean);
+  EXPECT_EQ(scene.edits[2].kind, EditKind::Global);
+  EXPECT_EQ(scene.edits[3].kind, EditKind::Relax);
+  EXPECT_EQ(scene.edits[4].kind, EditKind::ScaleRest);
+  EXPECT_EQ(scene.edits[4].factor, 0.95);
+  EXPECT_EQ(scene.simulation.dtRatio, 0.5);
+  EXPECT_EQ(scene.simulation.seed, 7u);
+  EXPECT_EQ(scene.camera.fov, 45.0);
+  // And it fits its mesh.
+  const Model model = buildModel(scene, loadMeshSource(scene.mesh));
+  EXPECT_EQ(model.properties.stiffness[11], 1.5);
+  EXPECT_EQ(model.properties.stiffness[13], 5.0);
+  EXPECT_EQ(model.properties.mass[1], 1.0);
+  EXPECT_EQ(model.properties.mass[2], 0.5);
+  EXPECT_EQ(model.properties.restLength[1], 0.9);
+  EXPECT_EQ(model.properties.damping[0], 0.02);
+}
+
+TEST_F(SceneFile, DefaultsOfAMinimalScene) {
+  const SceneDescription scene = parseScene(kMinimal, "");
+  expectSameUniform(scene.properties, UniformProperties{});
+  EXPECT_TRUE(scene.overrides.empty());
+  EXPECT_EQ(scene.simulation.scheme, SimulationScheme::Default);
+  EXPECT_FALSE(scene.simulation.dt || scene.simulation.dtRatio || scene.simulation.steps ||
+               scene.simulation.time);
+  EXPECT_FALSE(scene.camera.target || scene.camera.fov);
+}
+
+TEST_F(SceneFile, RelativeMeshPathsFollowTheSceneFile) {
+  fs::create_directories(dir_ / "scenes");
+  fs::copy_file(data("curve.obj"), path("curve.obj"));
+  writeText(path("scenes/s.json"), R"({"mesh": "../curve.obj"})");
+  const SceneDescription scene = loadScene(path("scenes/s.json"));
+  EXPECT_EQ(fs::path(scene.mesh), fs::path(path("curve.obj")));
+  EXPECT_EQ(loadMeshSource(scene.mesh).numEdges(), 3);
+  // Saved elsewhere, the path is rewritten relative to the new place.
+  fs::create_directories(dir_ / "other/deeper");
+  saveScene(scene, path("other/deeper/t.json"));
+  EXPECT_NE(readText(path("other/deeper/t.json")).find("\"../../curve.obj\""), std::string::npos);
+  EXPECT_EQ(fs::path(loadScene(path("other/deeper/t.json")).mesh), fs::path(path("curve.obj")));
+}
+
+TEST_F(SceneFile, SaveAndLoadRoundTrip) {
+  SceneDescription scene;
+  scene.description = "round trip, \"quoted\" and unicode: \xc3\xa9";
+  scene.mesh = "builtin:grid:5";
+  scene.properties.mass = 0.123456789012345678;
+  scene.properties.damping = 1e-300;
+  scene.properties.stiffness = 7.0 / 3.0;
+  scene.properties.angularStiffness = 0.25;
+  scene.properties.rigidity = 0.5;
+  scene.properties.stiffnessCap = 42.0;
+  scene.properties.restLengthScale = 0.9;
+  scene.properties.gravity = Vec3(0.1, -9.81, 1.0 / 7.0);
+  std::vector<double> all(25);
+  for (int i = 0; i < 25; ++i) all[i] = 0.5 + i / 3.0;
+  scene.overrides.push_back({Property::Mass, false, {3, 1}, {2.0, 3.0}});
+  scene.overrides.push_back({Property::Stiffness, true, {}, all});
+  scene.overrides.push_back({Property::RestLength, false, {0, 39}, {0.5, 1.5}});
+  scene.overrides.push_back({Property::RestAngle, false, {7}, {1.0}});
+  scene.constraints.push_back({ConstraintType::Position, 0, Vec3(0, 0, 1), std::nullopt});
+  scene.constraints.push_back({ConstraintType::Position, 4, std::nullopt, std::nullopt});
+  scene.constraints.push_back({ConstraintType::Normal, 24, std::nullopt, Vec3(0, 1, 0)});
+  scene.forces.push_back({12, Vec3(1, 2, 3), 0.25, 0.75});
+  scene.forces.push_back({13, Vec3(0, 0, -1), 0.0, std::numeric_limits<double>::infinity()});
+  scene.torques.push_back({6, Vec3(0.5, 0, 0), 1.0, 2.0});
+  SceneEdit dab;
+  dab.time = 0.1;
+  dab.brush = {Property::Rigidity,  BrushMode::Add,          -0.25, 0.3, 1.5,
+               BrushFalloff::Sharp, BrushDistance::Euclidean};
+  dab.centerPoint = Vec3(1, 1, 0);
+  scene.edits.push_back(dab);
+  dab.centerPoint.reset();
+  dab.centerVertex = 7;
+  dab.brush.mode = BrushMode::Smooth;
+  dab.brush.value = 0.0;
+  scene.edits.push_back(dab);
+  SceneEdit global;
+  global.kind = EditKind::Global;
+  global.time = 0.2;
+  global.brush.property = Property::Damping;
+  global.brush.value = 0.5;
+  scene.edits.push_back(global);
+  SceneEdit relax;
+  relax.kind = EditKind::Relax;
+  relax.time = 3;
+  scene.edits.push_back(relax);
+  SceneEdit scale;
+  scale.kind = EditKind::ScaleRest;
+  scale.factor = 1.25;
+  scene.edits.push_back(scale);
+  scene.simulation = {SimulationScheme::ImplicitEuler, 1e-3, std::nullopt, 1234, std::nullopt, 0.01,
+                      18446744073709551615ull};
+  scene.camera = {Vec3(1, 2, 3), 10.0, -30.0, 45.0, 60.0};
+
+  saveScene(scene, path("scene.json"));
+  const SceneDescription back = loadScene(path("scene.json"));
+  expectSameScene(back, scene);
+  EXPECT_EQ(back.sourcePath, path("scene.json"));
+  EXPECT_NO_THROW(validateScene(back, makeGrid(5)));
+  // Saving what was loaded gives the same file.
+  saveScene(back, path("again.json"));
+  EXPECT_EQ(readText(path("again.json")), readText(path("scene.json")));
+  EXPECT_EQ(entries(), (std::set<std::string>{"scene.json", "again.json"}));
+}
+
+TEST_F(SceneFile, PaintedPropertiesSurviveSaveAndLoad) {
+  SceneDescription scene = parseScene(R"({"mesh": "builtin:torus:8:6",
+      "properties": {"stiffness": 3, "rest_length_scale": 0.95}})",
+                                      "");
+  Model model = buildModel(scene, loadMeshSource(scene.mesh));
+  // Paint: a stiffness gradient, a heavier vertex, one shortened spring, gravity on.
+  for (Index v = 0; v < model.mesh.numVertices(); ++v)
+    model.properties.stiffness[v] = 3.0 + v / 7.0;
+  model.properties.mass[5] = 2.0;
+  model.properties.restLength[3] *= 0.5;
+  model.properties.gravity = Vec3(0, 0, -9.81);
+  recordProperties(scene, model);
+  EXPECT_EQ(scene.overrides.size(), 3u);  // stiffness, mass, rest_length: full arrays
+  saveScene(scene, path("painted.json"));
+  const SceneDescription back = loadScene(path("painted.json"));
+  const Model rebuilt = buildModel(back, loadMeshSource(back.mesh));
+  for (Property p : kAllProperties)
+    EXPECT_EQ(rebuilt.properties.values(p), model.properties.values(p)) << propertyName(p);
+  EXPECT_EQ(rebuilt.properties.gravity, model.properties.gravity);
+}
+
+TEST_F(SceneFile, InvalidScenesNameTheJsonPathAndReason) {
+  struct Case {
+    std::string text;
+    std::string message;  // expected after "<file>: "
+  };
+  const std::vector<Case> cases = {
+      // Values out of range.
+      {with(R"("properties": {"mass": -1})"), "/properties/mass: mass must be > 0, got -1"},
+      {with(R"("properties": {"mass": 0})"), "/properties/mass: mass must be > 0, got 0"},
+      {with(R"("properties": {"stiffness": -5})"), "/properties/stiffness: stiffness must be >= 0"},
+      {with(R"("properties": {"damping": -0.1})"), "/properties/damping: damping must be >= 0"},
+      {with(R"("properties": {"rigidity": 1.5})"),
+       "/properties/rigidity: rigidity must be in [0, 1]"},
+      {with(R"("properties": {"stiffness_cap": 0})"), "/properties/stiffness_cap: must be > 0"},
+      {with(R"("properties": {"rest_length_scale": -1})"),
+       "/properties/rest_length_scale: must be > 0"},
+      {with(R"("properties": {"mass": 1e999})"), "number overflow"},
+      // Unknown keys, at every level.
+      {with(R"("meshes": 1)"), "/meshes: unknown key"},
+      {with(R"("properties": {"stifness": 5})"),
+       "/properties/stifness: unknown key (valid here: mass,"},
+      {with(R"("simulation": {"dt": 0.1, "stepz": 3})"), "/simulation/stepz: unknown key"},
+      {with(R"("camera": {"zoom": 3})"), "/camera/zoom: unknown key"},
+      {with(R"("forces": [{"vertex": 1, "force": [0,0,1], "duration": 1}])"),
+       "/forces/0/duration: unknown key"},
+      {with(R"("constraints": [{"type": "position", "vertex": 1, "normal": [0,0,1]}])"),
+       "/constraints/0/normal: unknown key"},
+      {with(R"("edits": [{"action": "relax", "radius": 1}])"), "/edits/0/radius: unknown key"},
+      {with(R"("edits": [{"global": true, "property": "mass", "value": 1, "radius": 1}])"),
+       "/edits/0/radius: unknown key"},
+      {with(R"("a/b~c": 1)"), "/a~1b~0c: unknown key"},
+      // Wrong types.
+      {with(R"("properties": {"mass": "heavy"})"),
+       "/properties/mass: expected a number, got a string (\"heavy\")"},
+      {with(R"("properties": {"mass": true})"), "/properties/mass: expected a number, got true"},
+      {with(R"("properties": {"gravity": [0, -9.81]})"),
+       "/properties/gravity: expected an array of 3 numbers"},
+      {with(R"("properties": {"gravity": [0, "down", 0]})"),
+       "/properties/gravity/1: expected a number"},
+      {with(R"("properties": [])"), "/properties: expected an object, got an array"},
+      {with(R"("forces": {"vertex": 1})"), "/forces: expected an array, got an object"},
+      {with(R"("forces": [{"vertex": 1.5, "force": [0,0,1]}])"),
+       "/forces/0/vertex: expected a vertex index (an integer >= 0), got the number 1.5"},
+      {with(R"("forces": [{"vertex": -2, "force": [0,0,1]}])"),
+       "/forces/0/vertex: must be >= 0, got -2"},
+      {with(R"("forces": [{"vertex": 99999999999, "force": [0,0,1]}])"),
+       "/forces/0/vertex: 99999999999 is too large"},
+      {R"({"mesh": 3})", "/mesh: expected a string, got the number 3"},
+      {R"([1, 2])", "/: expected an object, got an array"},
+      {with(R"("version": 2)"), "/version: unsupported version 2"},
+      // Missing or conflicting keys.
+      {R"({})", "/: needs \"mesh\""},
+      {R"({"mesh": ""})", "/mesh: must not be empty"},
+      {with(R"("simulation": {"dt": 0.1, "dt_ratio": 0.5})"),
+       "/simulation/dt_ratio: give dt or dt_ratio, not both"},
+      {with(R"("simulation": {"steps": 10, "time": 1})"),
+       "/simulation/time: give steps or time, not both"},
+      {with(R"("simulation": {"dt": 0})"), "/simulation/dt: must be > 0, got 0"},
+      {with(R"("simulation": {"scheme": "rk4"})"),
+       "/simulation/scheme: unknown scheme \"rk4\" (valid: default, paper, exact, "
+       "symplectic-euler, implicit-euler)"},
+      {with(R"("forces": [{"force": [0,0,1]}])"), "/forces/0: needs \"vertex\""},
+      {with(R"("forces": [{"vertex": 1, "force": [0,0,1], "start": 2, "end": 1}])"),
+       "/forces/0/end: must be after start (2), got 1"},
+      {with(R"("torques": [{"vertex": 1, "force": [0,0,1]}])"), "/torques/0/force: unknown key"},
+      {with(R"("constraints": [{"vertex": 1}])"), "/constraints/0: needs \"type\""},
+      {with(R"("constraints": [{"type": "weld", "vertex": 1}])"),
+       "/constraints/0/type: unknown constraint type \"weld\""},
+      {with(R"("constraints": [{"type": "normal", "vertex": 1, "normal": [0,0,0]}])"),
+       "/constraints/0/normal: the normal must not be zero"},
+      // Per-element overrides.
+      {with(R"("vertex_properties": {"stifness": {"values": [1]}})"),
+       "/vertex_properties/stifness: unknown property 'stifness'"},
+      {with(R"("vertex_properties": {"rest_length": {"values": [1]}})"),
+       "/vertex_properties/rest_length: rest_length is a per-edge property"},
+      {with(R"("vertex_properties": {"mass": {"indices": [1], "values": [1], "value": 1}})"),
+       "/vertex_properties/mass: give \"values\" or \"value\", not both"},
+      {with(R"("vertex_properties": {"mass": {"value": 1}})"),
+       "/vertex_properties/mass/value: needs \"indices\""},
+      {with(R"("vertex_properties": {"mass": {"indices": [1, 2], "values": [1]}})"),
+       "/vertex_properties/mass/values: 1 values for 2 indices"},
+      {with(R"("vertex_properties": {"mass": {"indices": [1, 1], "value": 2}})"),
+       "/vertex_properties/mass/indices/1: vertex 1 appears more than once"},
+      {with(R"("vertex_properties": {"stiffness": {"indices": [1, 2], "values": [1, -3]}})"),
+       "/vertex_properties/stiffness/values/1: stiffness must be >= 0, got -3"},
+      {with(R"("vertex_properties": {"mass": {"indices": [1], "value": 0}})"),
+       "/vertex_properties/mass/value: mass must be > 0, got 0"},
+      {with(R"("rest_angles": {"indices": [0], "value": 4})"),
+       "/rest_angles/value: rest_angle must be in [0, 3.14159"},
+      {with(R"("rest_lengths": {"indices": [0], "value": -1})"),
+       "/rest_lengths/value: rest_length must be >= 0"},
+      // Edits.
+      {with(R"("edits": [{"property": "stiffness", "radius": 1, "value": 1}])"),
+       "/edits/0: needs \"center\""},
+      {with(R"("edits": [{"property": "stiffness", "center": 1, "value": 1}])"),
+       "/edits/0: needs \"radius\""},
+      {with(R"("edits": [{"property": "stiffness", "center": 1, "radius": 0, "value": 1}])"),
+       "/edits/0/radius: must be > 0, got 0"},
+      {with(R"("edits": [{"property": "stiffness", "center": 1, "radius": 1}])"),
+       "/edits/0: needs \"value\""},
+      {with(R"("edits": [{"property": "stiffness", "center": 1, "radius": 1, "value": -1}])"),
+       "/edits/0/value: stiffness must be >= 0, got -1"},
+      {with(
+           R"("edits": [{"property": "mass", "center": 1, "radius": 1, "mode": "multiply", "value": -1}])"),
+       "/edits/0/value: must be >= 0, got -1"},
+      {with(
+           R"("edits": [{"property": "mass", "center": 1, "radius": 1, "mode": "smooth", "value": 1}])"),
+       "/edits/0/value: not used by mode smooth"},
+      {with(
+           R"("edits": [{"property": "mass", "center": 1, "radius": 1, "value": 1, "strength": 2}])"),
+       "/edits/0/strength: must be in [0, 1], got 2"},
+      {with(
+           R"("edits": [{"property": "mass", "center": 1, "radius": 1, "value": 1, "falloff": "soft"}])"),
+       "/edits/0/falloff: unknown falloff \"soft\" (valid: smooth, sphere, linear, sharp, "
+       "constant)"},
+      {with(
+           R"("edits": [{"property": "mass", "center": 1, "radius": 1, "value": 1, "distance": "geodesic"}])"),
+       "/edits/0/distance: unknown distance \"geodesic\""},
+      {with(
+           R"("edits": [{"property": "mass", "center": 1, "radius": 1, "value": 1, "mode": "paint"}])"),
+       "/edits/0/mode: unknown brush mode \"paint\""},
+      {with(R"("edits": [{"property": "weight", "center": 1, "radius": 1, "value": 1}])"),
+       "/edits/0/property: unknown property 'weight'"},
+      {with(R"("edits": [{"property": "mass", "center": "top", "radius": 1, "value": 1}])"),
+       "/edits/0/center: expected a vertex index or [x, y, z]"},
+      {with(R"("edits": [{"action": "scale_rest"}])"), "/edits/0: needs \"factor\""},
+      {with(R"("edits": [{"action": "scale_rest", "factor": 0}])"), "/edits/0/factor: must be > 0"},
+      {with(R"("edits": [{"action": "explode"}])"), "/edits/0/action: unknown action \"explode\""},
+      {with(R"("edits": [{"action": "relax", "time": -1}])"),
+       "/edits/0/time: must be >= 0, got -1"},
+      // Camera.
+      {with(R"("camera": {"pitch": 100})"), "/camera/pitch: must be in [-90, 90], got 100"},
+      {with(R"("camera": {"fov": 0})"), "/camera/fov: must be in (0, 180), got 0"},
+      {with(R"("camera": {"distance": -1})"), "/camera/distance: must be > 0"},
+      // Not JSON.
+      {R"({"mesh": "builtin:torus",})", "line 1, column 26: syntax error"},
+      {"", "line 1, column 1: syntax error"},
+  };
+  for (const Case& c : cases) {
+    const std::string message = errorOf([&] { parseScene(c.text, "bad.json"); });
+    EXPECT_EQ(message.rfind("bad.json: " + c.message, 0), 0u)
+        << c.text << "\n  gives: " << message << "\n  wanted: bad.json: " << c.message;
+    EXPECT_EQ(message.find('\n'), std::string::npos) << message;
+  }
+  EXPECT_THROW(parseScene(with(R"("properties": {"mass": -1})"), "bad.json"), InvalidInputError);
+}
+
+TEST_F(SceneFile, IndicesAreCheckedAgainstTheMesh) {
+  const Mesh torus = makeTorus(10, 10);  // 100 vertices, 200 edges, 600 angles
+  struct Case {
+    std::string text;
+    std::string message;
+  };
+  const std::vector<Case> cases = {
+      {with(R"("forces": [{"vertex": 0, "force": [0,0,1]}, {"vertex": 100, "force": [0,0,1]}])"),
+       "/forces/1/vertex: vertex 100 is out of range [0, 100)"},
+      {with(R"("torques": [{"vertex": 250, "torque": [0,0,1]}])"),
+       "/torques/0/vertex: vertex 250 is out of range"},
+      {with(R"("constraints": [{"type": "normal", "vertex": 100}])"),
+       "/constraints/0/vertex: vertex 100"},
+      {with(R"("edits": [{"property": "mass", "center": 100, "radius": 1, "value": 1}])"),
+       "/edits/0/center: vertex 100"},
+      {with(R"("vertex_properties": {"damping": {"indices": [5, 120], "value": 1}})"),
+       "/vertex_properties/damping/indices/1: vertex 120 is out of range [0, 100)"},
+      {with(R"("vertex_properties": {"mass": {"values": [1, 2, 3]}})"),
+       "/vertex_properties/mass/values: 3 values for 100 vertices (one per vertex)"},
+      {with(R"("rest_lengths": {"indices": [200], "value": 1})"),
+       "/rest_lengths/indices/0: edge 200 is out of range [0, 200)"},
+      {with(R"("rest_angles": {"indices": [600], "value": 1})"),
+       "/rest_angles/indices/0: angle 600 is out of range [0, 600)"},
+  };
+  for (const Case& c : cases) {
+    const SceneDescription scene = parseScene(c.text, "s.json");  // fine without the mesh
+    const std::string message = errorOf([&] { validateScene(scene, torus); });
+    EXPECT_EQ(message.rfind("s.json: " + c.message, 0), 0u)
+        << c.text << "\n  gives: " << message << "\n  wanted: s.json: " << c.message;
+    EXPECT_THROW(buildModel(scene, torus), InvalidInputError);
+  }
+  // The largest valid indices pass.
+  const SceneDescription ok = parseScene(
+      with(
+          R"("forces": [{"vertex": 99, "force": [0,0,1]}], "rest_lengths": {"indices": [199], "value": 1},
+              "rest_angles": {"indices": [599], "value": 1})"),
+      "s.json");
+  const Model model = buildModel(ok, torus);
+  EXPECT_EQ(model.properties.restLength[199], 1.0);
+  EXPECT_EQ(model.properties.restAngle[599], 1.0);
+}
+
+TEST_F(SceneFile, FileErrors) {
+  const std::string missing = path("missing.json");
+  std::string message = errorOf([&] { loadScene(missing); });
+  expectUserError(message, missing);
+  EXPECT_THROW(loadScene(missing), IOError);
+  writeText(path("bad.json"),
+            "{\n  \"mesh\": \"builtin:torus\",\n  \"properties\": {\"mass\": -1}\n}\n");
+  message = errorOf([&] { loadScene(path("bad.json")); });
+  EXPECT_EQ(message, path("bad.json") + ": /properties/mass: mass must be > 0, got -1");
+  EXPECT_THROW(saveScene(parseScene(kMinimal, ""), path("no/folder/s.json")), IOError);
+  EXPECT_TRUE(isSceneFileName("a/b.JSON"));
+  EXPECT_FALSE(isSceneFileName("a/b.obj"));
+}

@@ -1,0 +1,190 @@
+// Mesh module: connectivity for any topology, built-in models (counts of Table 1 and
+// cli.md), classification queries, bad input.
+
+#include <gtest/gtest.h>
+
+#include <algorithm>
+
+#include "zsculpt/core/errors.h"
+#include "zsculpt/mesh/builtin.h"
+#include "zsculpt/mesh/mesh.h"
+
+using namespace zsculpt;
+
+namespace {
+
+void expectCounts(const Mesh& m, Index v, Index e, Index f) {
+  EXPECT_EQ(m.numVertices(), v);
+  EXPECT_EQ(m.numEdges(), e);
+  EXPECT_EQ(m.numFaces(), f);
+}
+
+// Every face's Newell normal points away from the model's centroid.
+void expectOutwardFaces(const Mesh& m) {
+  const Vec3 centre = m.positions().colwise().mean().transpose();
+  for (Index f = 0; f < m.numFaces(); ++f) {
+    const auto face = m.face(f);
+    Vec3 normal = Vec3::Zero(), centroid = Vec3::Zero();
+    for (size_t k = 0; k < face.size(); ++k) {
+      const Vec3 a = m.positions().row(face[k]).transpose();
+      const Vec3 b = m.positions().row(face[(k + 1) % face.size()]).transpose();
+      normal += a.cross(b);
+      centroid += a;
+    }
+    centroid /= static_cast<double>(face.size());
+    EXPECT_GT(normal.dot(centroid - centre), 0.0) << "face " << f;
+  }
+}
+
+}  // namespace
+
+TEST(Builtin, CountsMatchTable1AndTheContract) {
+  expectCounts(makeBuiltin("builtin:dodecahedron"), 20, 30, 12);
+  expectCounts(makeBuiltin("builtin:torus"), 100, 200, 100);
+  expectCounts(makeBuiltin("builtin:torus:40:40"), 1600, 3200, 1600);
+  expectCounts(makeBuiltin("builtin:grid"), 324, 612, 289);
+  expectCounts(makeBuiltin("builtin:grid:5"), 25, 40, 16);
+  expectCounts(makeBuiltin("builtin:helix"), 64, 63, 0);
+  expectCounts(makeBuiltin("builtin:helix:10"), 10, 9, 0);
+  expectCounts(makeBuiltin("builtin:lattice:3"), 27, 54, 24);
+  expectCounts(makeBuiltin("builtin:lattice:4"), 64, 144, 54);
+  expectCounts(makeBuiltin("builtin:fins"), 8, 10, 3);
+}
+
+TEST(Builtin, DodecahedronIsRegularWithUnitEdgesAndOutwardFaces) {
+  const Mesh m = makeDodecahedron();
+  for (Index e = 0; e < m.numEdges(); ++e) {
+    const auto [a, b] = m.edge(e);
+    EXPECT_NEAR((m.positions().row(a) - m.positions().row(b)).norm(), 1.0, 1e-12);
+  }
+  EXPECT_LT(m.positions().colwise().mean().norm(), 1e-12);
+  for (Index v = 0; v < 20; ++v) EXPECT_EQ(m.valence(v), 3);
+  expectOutwardFaces(m);
+}
+
+TEST(Builtin, DocumentedVertexOrder) {
+  const Mesh torus = makeTorus(12, 8);
+  // Vertex (u, v) is u + U v: u = 3, v = 0 is at angle 2 pi 3/12 = 90 degrees, outer rim.
+  EXPECT_TRUE(torus.positions().row(3).isApprox(Eigen::RowVector3d(0, 3, 0), 1e-12));
+  // v = 2 of 8 is a quarter turn around the tube: the top, z = 1, radius 2.
+  EXPECT_TRUE(torus.positions().row(0 + 12 * 2).isApprox(Eigen::RowVector3d(2, 0, 1), 1e-12));
+  expectOutwardFaces(makeLattice(3));
+  const Mesh grid = makeGrid(7);
+  EXPECT_TRUE(grid.positions().row(3 + 7 * 5).isApprox(Eigen::RowVector3d(3, 5, 0)));
+}
+
+TEST(Mesh, GridBoundaryIsItsPerimeter) {
+  const Mesh m = makeGrid(6);
+  EXPECT_EQ(m.boundaryEdges().size(), 20u);
+  EXPECT_TRUE(m.nonManifoldEdges().empty());
+  for (Index e : m.boundaryEdges()) {
+    const auto [a, b] = m.edge(e);
+    for (Index v : {a, b}) {
+      const double x = m.positions()(v, 0), y = m.positions()(v, 1);
+      EXPECT_TRUE(x == 0 || y == 0 || x == 5 || y == 5);
+    }
+  }
+  EXPECT_EQ(m.numComponents(), 1);
+}
+
+TEST(Mesh, FinsHaveOneNonManifoldEdgeAndSixBoundaryEdgesPerFinPair) {
+  const Mesh m = makeFins();
+  const auto nm = m.nonManifoldEdges();
+  ASSERT_EQ(nm.size(), 1u);
+  EXPECT_EQ(m.edgeFaces(nm[0]).size(), 3u);
+  EXPECT_EQ(m.edge(nm[0]), (std::array<Index, 2>{0, 1}));
+  EXPECT_EQ(m.boundaryEdges().size(), 9u);
+}
+
+TEST(Mesh, ClosedSurfacesHaveNoBoundary) {
+  EXPECT_TRUE(makeTorus().boundaryEdges().empty());
+  EXPECT_TRUE(makeDodecahedron().boundaryEdges().empty());
+  EXPECT_TRUE(makeLattice(3).boundaryEdges().empty());
+}
+
+TEST(Mesh, CurveHasWireEdgesAndNoFaces) {
+  const Mesh m = makeHelix(10);
+  for (Index e = 0; e < m.numEdges(); ++e) EXPECT_TRUE(m.isWireEdge(e));
+  EXPECT_EQ(m.valence(0), 1);
+  EXPECT_EQ(m.valence(5), 2);
+}
+
+TEST(Mesh, SolidCarriesItsInteriorEdges) {
+  const Mesh m = makeLattice(3);
+  // The centre vertex (1,1,1) = 13 has six lattice neighbours and lies on no face.
+  EXPECT_EQ(m.valence(13), 6);
+  EXPECT_TRUE(m.vertexFaces(13).empty());
+  Index wire = 0;
+  for (Index e = 0; e < m.numEdges(); ++e) wire += m.isWireEdge(e);
+  // 54 edges, 48 of them on the boundary squares: the six spokes from the centre to the
+  // face centres run through the inside.
+  EXPECT_EQ(wire, 6);
+}
+
+TEST(Mesh, IsolatedVerticesAndComponents) {
+  Points p(7, 3);
+  p << 0, 0, 0, 1, 0, 0, 0, 1, 0, 5, 5, 5, 6, 5, 5, 5, 6, 5, 9, 9, 9;
+  const Mesh m(p, {{0, 1, 2}, {3, 4, 5}});
+  EXPECT_EQ(m.isolatedVertices(), std::vector<Index>{6});
+  Index count = 0;
+  const auto labels = m.componentLabels(&count);
+  EXPECT_EQ(count, 3);
+  EXPECT_EQ(labels[0], labels[2]);
+  EXPECT_NE(labels[0], labels[3]);
+}
+
+TEST(Mesh, OneRingAndTwoRing) {
+  const Mesh m = makeGrid(5);
+  const Index centre = 2 + 5 * 2;
+  auto ring = std::vector<Index>(m.vertexNeighbors(centre).begin(), m.vertexNeighbors(centre).end());
+  std::sort(ring.begin(), ring.end());
+  EXPECT_EQ(ring, (std::vector<Index>{7, 11, 13, 17}));
+  // Two edges away on a quad grid: a diamond of 12 vertices.
+  EXPECT_EQ(m.twoRing(centre).size(), 12u);
+  EXPECT_EQ(m.findEdge(centre, 13) >= 0, true);
+  EXPECT_EQ(m.findEdge(centre, 18), -1);
+}
+
+TEST(Mesh, EdgesAreNumberedInOrderOfFirstOccurrence) {
+  Points p(4, 3);
+  p << 0, 0, 0, 1, 0, 0, 1, 1, 0, 0, 1, 0;
+  const Mesh m(p, {{0, 1, 2, 3}}, {{0, 2}});
+  ASSERT_EQ(m.numEdges(), 5);
+  EXPECT_EQ(m.edge(0), (std::array<Index, 2>{0, 1}));
+  EXPECT_EQ(m.edge(3), (std::array<Index, 2>{0, 3}));
+  EXPECT_EQ(m.edge(4), (std::array<Index, 2>{0, 2}));
+  EXPECT_TRUE(m.isWireEdge(4));
+}
+
+TEST(MeshErrors, BadInputIsRefusedWithAClearMessage) {
+  Points p(3, 3);
+  p << 0, 0, 0, 1, 0, 0, 0, 1, 0;
+  EXPECT_THROW(Mesh(Points(0, 3), {}), TopologyError);
+  EXPECT_THROW(Mesh(p, {{0, 1}}), TopologyError);
+  EXPECT_THROW(Mesh(p, {{0, 1, 3}}), TopologyError);
+  EXPECT_THROW(Mesh(p, {{0, 1, 1}}), TopologyError);
+  EXPECT_THROW(Mesh(p, {}, {{0, 0}}), TopologyError);
+  Points nan = p;
+  nan(1, 2) = std::nan("");
+  EXPECT_THROW(Mesh(nan, {{0, 1, 2}}), InvalidInputError);
+  Points coincident = p;
+  coincident.row(2) = coincident.row(1);
+  try {
+    Mesh(coincident, {{0, 1, 2}});
+    FAIL() << "coincident vertices accepted";
+  } catch (const TopologyError& e) {
+    EXPECT_NE(std::string(e.what()).find("zero-length spring"), std::string::npos);
+  }
+  try {
+    Mesh(p, {{0, 1, 7}});
+    FAIL();
+  } catch (const TopologyError& e) {
+    EXPECT_EQ(std::string(e.what()), "face 0 refers to vertex 7, out of range [0, 3)");
+  }
+}
+
+TEST(BuiltinErrors, UnknownOrMalformedNamesAreRefused) {
+  for (const char* bad : {"builtin:cube", "builtin:torus:3", "builtin:grid:x", "builtin:grid:1",
+                          "builtin:lattice", "builtin:helix:0", "builtin:torus:2:10", "torus"})
+    EXPECT_THROW(makeBuiltin(bad), InvalidInputError) << bad;
+}
