@@ -1,0 +1,210 @@
+// The zsculpt command line (../shared/notes/cli.md): exit codes, one-line errors, JSON
+// summaries, state files, no partial outputs. Runs the real binary.
+
+#include <gtest/gtest.h>
+#include <sys/wait.h>
+
+#include <cstdlib>
+#include <filesystem>
+#include <fstream>
+#include <nlohmann/json.hpp>
+#include <sstream>
+#include <string>
+
+namespace fs = std::filesystem;
+
+namespace {
+
+struct Result {
+  int status = -1;
+  std::string out, err;
+};
+
+std::string slurp(const fs::path& p) {
+  std::ifstream in(p);
+  std::stringstream s;
+  s << in.rdbuf();
+  return s.str();
+}
+
+class Cli : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    dir_ = fs::temp_directory_path() /
+           ("zsculpt_cli_" + std::to_string(::getpid()) + "_" +
+            ::testing::UnitTest::GetInstance()->current_test_info()->name());
+    fs::remove_all(dir_);
+    fs::create_directories(dir_);
+  }
+  void TearDown() override { fs::remove_all(dir_); }
+
+  Result run(const std::string& args) {
+    const fs::path out = dir_ / "stdout", err = dir_ / "stderr";
+    const std::string command = std::string(ZSCULPT_BINARY) + " " + args + " >" + out.string() +
+                                " 2>" + err.string() + " </dev/null";
+    const int raw = std::system(command.c_str());
+    Result r;
+    r.status = WIFEXITED(raw) ? WEXITSTATUS(raw) : -1;
+    r.out = slurp(out);
+    r.err = slurp(err);
+    return r;
+  }
+  std::string path(const std::string& name) const { return (dir_ / name).string(); }
+
+  fs::path dir_;
+};
+
+void expectOneLineError(const Result& r, int status, const std::string& mentions) {
+  EXPECT_EQ(r.status, status) << r.err;
+  EXPECT_EQ(r.err.rfind("zsculpt: error: ", 0), 0u) << r.err;
+  EXPECT_EQ(std::count(r.err.begin(), r.err.end(), '\n'), 1) << r.err;
+  EXPECT_NE(r.err.find(mentions), std::string::npos) << r.err;
+}
+
+}  // namespace
+
+TEST_F(Cli, EverySubcommandHasHelp) {
+  for (const char* sub : {"info", "simulate", "reproduce"}) {
+    const Result r = run(std::string(sub) + " --help");
+    EXPECT_EQ(r.status, 0) << sub;
+    EXPECT_NE(r.out.find("Usage"), std::string::npos) << sub;
+  }
+}
+
+TEST_F(Cli, InfoJsonHasTheContractFields) {
+  const Result r = run("info builtin:dodecahedron --json");
+  ASSERT_EQ(r.status, 0) << r.err;
+  const auto j = nlohmann::json::parse(r.out);
+  EXPECT_EQ(j["vertices"], 20);
+  EXPECT_EQ(j["edges"], 30);
+  EXPECT_EQ(j["faces"], 12);
+  EXPECT_EQ(j["boundary_edges"], 0);
+  EXPECT_EQ(j["non_manifold_edges"], 0);
+  EXPECT_EQ(j["isolated_vertices"], 0);
+  EXPECT_EQ(j["components"], 1);
+  EXPECT_EQ(j["bbox_min"].size(), 3u);
+  EXPECT_EQ(j["bbox_max"].size(), 3u);
+  EXPECT_NEAR(j["t_max"].get<double>(), 0.4472, 5e-5);
+  EXPECT_NEAR(j["t_max_tight"].get<double>(), std::sqrt(12.0 / 52.360679774997898), 1e-9);
+}
+
+TEST_F(Cli, InfoOfTheFinsReportsTheNonManifoldEdge) {
+  const auto j = nlohmann::json::parse(run("info builtin:fins --json").out);
+  EXPECT_EQ(j["non_manifold_edges"], 1);
+  EXPECT_EQ(j["boundary_edges"], 9);
+}
+
+TEST_F(Cli, InfoOfAnAssimpFileWeldsIt) {
+  const Result r = run("info /usr/share/assimp/models/OBJ/box.obj --json");
+  if (r.status == 2 && r.err.find("no such file") != std::string::npos)
+    GTEST_SKIP() << "assimp-testmodels not installed";
+  ASSERT_EQ(r.status, 0) << r.err;
+  const auto j = nlohmann::json::parse(r.out);
+  EXPECT_EQ(j["vertices"], 8);
+  EXPECT_EQ(j["edges"], 12);
+  EXPECT_EQ(j["faces"], 6);
+}
+
+TEST_F(Cli, SimulateJsonSummaryAndFiles) {
+  const Result r = run("simulate builtin:torus --mass 0.1 --perturb 0.05 --seed 3 --steps 200 "
+                       "--dt-ratio 0.5 --json --csv " + path("d.csv") + " --state-out " +
+                       path("s.csv"));
+  ASSERT_EQ(r.status, 0) << r.err;
+  const auto j = nlohmann::json::parse(r.out);
+  for (const char* key : {"scheme", "dt", "t_max", "steps", "diverged", "diverged_at_step",
+                          "energy_start", "energy_end", "energy_drift", "momentum_drift",
+                          "angular_momentum_drift", "wall_seconds"})
+    EXPECT_TRUE(j.contains(key)) << key;
+  EXPECT_EQ(j["scheme"], "default");
+  EXPECT_EQ(j["steps"], 200);
+  EXPECT_EQ(j["diverged"], false);
+  EXPECT_NEAR(j["dt"].get<double>(), 0.5 * j["t_max"].get<double>(), 1e-15);
+  EXPECT_LT(j["momentum_drift"].get<double>(), 1e-12);
+  const std::string csv = slurp(path("d.csv"));
+  EXPECT_EQ(csv.substr(0, csv.find('\n')), "step,time,kinetic,potential,total,px,py,pz,lx,ly,lz");
+  // Header, the initial state (step 0), then one row per step.
+  EXPECT_EQ(std::count(csv.begin(), csv.end(), '\n'), 202);
+  const std::string state = slurp(path("s.csv"));
+  EXPECT_EQ(state.substr(0, state.find('\n')), "x,y,z,vx,vy,vz");
+  EXPECT_EQ(std::count(state.begin(), state.end(), '\n'), 101);
+}
+
+TEST_F(Cli, StateOutThenStateInContinuesTheRunExactly) {
+  const std::string common = "simulate builtin:dodecahedron --perturb 0.05 --dt-ratio 0.5 ";
+  ASSERT_EQ(run(common + "--steps 100 --state-out " + path("all.csv")).status, 0);
+  ASSERT_EQ(run(common + "--steps 60 --state-out " + path("half.csv")).status, 0);
+  ASSERT_EQ(run("simulate builtin:dodecahedron --dt-ratio 0.5 --steps 40 --state-in " +
+                path("half.csv") + " --state-out " + path("rest.csv"))
+                .status,
+            0);
+  EXPECT_EQ(slurp(path("all.csv")), slurp(path("rest.csv")));
+}
+
+TEST_F(Cli, AStepAboveTheStableLimitIsRefusedWithTheLimit) {
+  const Result r = run("simulate builtin:dodecahedron --dt-ratio 1.2");
+  expectOneLineError(r, 2, "stable limit");
+  EXPECT_NE(r.err.find("1.0704"), std::string::npos) << r.err;
+  EXPECT_EQ(run("simulate builtin:dodecahedron --dt-ratio 1.2 --steps 10 --allow-unstable").status, 0);
+  expectOneLineError(run("simulate builtin:dodecahedron --scheme symplectic-euler --dt-ratio 0.7"), 2,
+                     "symplectic-euler");
+}
+
+TEST_F(Cli, DivergenceExitsThreeAndWritesTheLastFiniteState) {
+  const Result r = run("simulate builtin:dodecahedron --scheme paper --perturb 0.05 --dt-ratio 1.3 "
+                       "--allow-unstable --steps 100000 --json --state-out " + path("s.csv") +
+                       " --csv " + path("d.csv"));
+  EXPECT_EQ(r.status, 3) << r.err;
+  const auto j = nlohmann::json::parse(r.out);
+  EXPECT_EQ(j["diverged"], true);
+  EXPECT_GT(j["diverged_at_step"].get<long>(), 0);
+  const std::string state = slurp(path("s.csv"));
+  EXPECT_EQ(std::count(state.begin(), state.end(), '\n'), 21);
+  EXPECT_EQ(state.find("nan"), std::string::npos);
+  EXPECT_EQ(state.find("inf"), std::string::npos);
+  EXPECT_TRUE(fs::exists(path("d.csv")));
+}
+
+TEST_F(Cli, BadInputGetsOneLineAndExitTwoAndNoOutputFile) {
+  expectOneLineError(run("info " + path("missing.obj")), 2, "missing.obj");
+  expectOneLineError(run("info builtin:cube"), 2, "builtin:cube");
+  expectOneLineError(run("simulate builtin:grid --mass -1 --state-out " + path("s.csv")), 2, "--mass");
+  EXPECT_FALSE(fs::exists(path("s.csv")));
+  expectOneLineError(run("simulate builtin:grid --rigidity 2"), 2, "--rigidity");
+  expectOneLineError(run("simulate builtin:grid --scheme rk4"), 2, "rk4");
+  expectOneLineError(run("simulate builtin:grid --force 9999:0,0,1"), 2, "9999");
+  expectOneLineError(run("simulate builtin:grid --force 3:0,zero,1"), 2, "--force");
+  expectOneLineError(run("simulate builtin:grid --dt 0"), 2, "--dt");
+  expectOneLineError(run("simulate builtin:grid --steps 5 --csv /dev/null/dir/d.csv"), 2,
+                     "/dev/null/dir");
+  expectOneLineError(run("simulate builtin:grid --nonsense"), 2, "--nonsense");
+  std::ofstream(path("bad_state.csv")) << "x,y,z,vx,vy,vz\n1,2,3,4,5\n";
+  expectOneLineError(run("simulate builtin:dodecahedron --state-in " + path("bad_state.csv")), 2,
+                     "bad_state.csv");
+}
+
+TEST_F(Cli, AScenesErrorsNameTheJsonPath) {
+  std::ofstream(path("scene.json")) << R"({"mesh": "builtin:grid", "properties": {"mass": 0}})";
+  const Result r = run("info " + path("scene.json"));
+  expectOneLineError(r, 2, "scene.json");
+  EXPECT_NE(r.err.find("/properties/mass"), std::string::npos) << r.err;
+}
+
+TEST_F(Cli, ReproduceFigure3FindsThePapersThreshold) {
+  const Result r = run("reproduce figure3 --quick --out " + path("fig"));
+  ASSERT_EQ(r.status, 0) << r.err;
+  EXPECT_TRUE(fs::exists(path("fig/figure3.csv")));
+  EXPECT_TRUE(fs::exists(path("fig/figure3.png")));
+  const std::string t = slurp(path("fig/figure3_thresholds.csv"));
+  std::istringstream lines(t);
+  std::string line;
+  std::getline(lines, line);
+  while (std::getline(lines, line)) {
+    const std::string scheme = line.substr(0, line.find(','));
+    const double ratio = std::stod(line.substr(line.find(',') + 1));
+    if (scheme == "paper") {
+      EXPECT_NEAR(ratio, 1.08, 0.01);  // Figure 3: 1.080
+    } else if (scheme == "default") {
+      EXPECT_NEAR(ratio, 1.0705, 0.005);  // x = 12 at lambda_0
+    }
+  }
+}
