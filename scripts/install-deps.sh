@@ -1,5 +1,6 @@
 #!/usr/bin/env bash
-# Installs the Debian 12 packages zsculpt needs to build, test and run.
+# Installs the Debian 12 packages zsculpt needs to build, test and run
+# (--reliability: also the fuzzing and leak-checking tools).
 # Idempotent: quiet and quick when everything is already there.
 set -euo pipefail
 
@@ -12,6 +13,11 @@ packages=(
   nlohmann-json3-dev libcli11-dev
   xvfb xauth
 )
+# Optional: `install-deps.sh --reliability` adds what scripts/fuzz.sh, sanitize.sh and
+# soak.sh need (clang with libFuzzer and its OpenMP, valgrind); CI's install stays small.
+if [ "${1:-}" = "--reliability" ]; then
+  packages+=(clang libclang-rt-14-dev libomp-dev valgrind)
+fi
 
 missing=()
 for p in "${packages[@]}"; do

@@ -3,8 +3,10 @@
 
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cmath>
 #include <numbers>
+#include <vector>
 
 #include "zsculpt/mesh/builtin.h"
 #include "zsculpt/physics/diagnostics.h"
@@ -404,4 +406,153 @@ TEST(Schemes, DefaultDivergesJustAboveTheTightPeriodAndNotBelow) {
   EXPECT_FALSE(diverges(1.0));
   EXPECT_FALSE(diverges(1.06));
   EXPECT_TRUE(diverges(1.09));
+}
+
+// ---- the fast force kernel, threads and determinism (docs/performance.md) ---------------------
+
+namespace {
+
+Points deformed(const Model& model, double amplitude, unsigned seed) {
+  Points x = model.mesh.positions(), v;
+  randomVelocity(model.properties.mass, amplitude, seed, v);
+  return x + v;
+}
+
+Points referenceForces(const Model& model, const Points& x) {
+  Points f = Points::Zero(x.rows(), 3);
+  accumulateInternalForces(model, x, f);
+  return f;
+}
+
+Points kernelForces(const Model& model, const Points& x, int threads = 1) {
+  ForceKernel kernel(model, threads);
+  Points f(x.rows(), 3);
+  kernel.compute(model, x, f, threads);
+  return f;
+}
+
+// Largest difference relative to the largest force (at least 1: forces at rest are rounding).
+double relativeDifference(const Points& a, const Points& b) {
+  return (a - b).cwiseAbs().maxCoeff() / std::max(1.0, b.cwiseAbs().maxCoeff());
+}
+
+}  // namespace
+
+TEST(ForceKernel, WithoutAngleSpringsEqualsTheReferenceBitForBit) {
+  // Same formula and the same per-vertex order of sums as accumulateInternalForces, so
+  // radial-only models step exactly as before the kernel existed.
+  for (Mesh mesh : {makeTorus(30, 20), makeGrid(12), makeFins(), makeHelix(40), makeLattice(5)}) {
+    Model model = withAngles(std::move(mesh), 0.0);
+    model.properties.stiffness[3] = 0.0;  // a cut
+    model.properties.stiffness[4] = 40.0;
+    model.properties.restLength[0] = 0.0;  // a linear spring
+    const Points x = deformed(model, 0.2, 21);
+    EXPECT_TRUE(kernelForces(model, x) == referenceForces(model, x));
+  }
+}
+
+TEST(ForceKernel, WithAngleSpringsAgreesWithTheReference) {
+  for (Mesh mesh : {makeTorus(30, 20), makeGrid(12), makeFins(), makeHelix(40), makeLattice(5)}) {
+    Model model = withAngles(std::move(mesh), 0.7);
+    model.properties.angularStiffness[2] = 0.0;  // mixed: runs broken up, general path
+    model.properties.angularStiffness[5] = 3.0;
+    for (double amplitude : {0.0, 0.2}) {  // at rest, straight angles are degenerate (sin 0)
+      const Points x = deformed(model, amplitude, 22);
+      EXPECT_LT(relativeDifference(kernelForces(model, x), referenceForces(model, x)), 1e-13);
+    }
+  }
+}
+
+TEST(ForceKernel, AnyAngleTableLayoutGivesTheSameForces) {
+  // A table in another order than buildAngleTable's (each vertex's angles reversed, arms
+  // swapped) takes the general path; a table with an arm that is no edge falls back to the
+  // reference.
+  Model model = withAngles(makeGrid(9), 0.6);
+  const Points x = deformed(model, 0.15, 23);
+  const Points expected = referenceForces(model, x);
+  Model shuffled = model;
+  AngleTable& table = shuffled.angles;
+  for (Index v = 0; v < shuffled.mesh.numVertices(); ++v) {
+    auto begin = table.angles.begin() + table.vertexOffsets[v];
+    auto end = table.angles.begin() + table.vertexOffsets[v + 1];
+    std::reverse(begin, end);
+    for (auto it = begin; it != end; ++it) std::swap((*it)[1], (*it)[2]);
+    std::reverse(shuffled.properties.restAngle.data() + table.vertexOffsets[v],
+                 shuffled.properties.restAngle.data() + table.vertexOffsets[v + 1]);
+  }
+  EXPECT_LT(relativeDifference(kernelForces(shuffled, x), expected), 1e-13);
+  Model odd = model;
+  odd.angles.angles[0][1] = odd.angles.angles[0][0] + 40;  // not a neighbour of the centre
+  EXPECT_TRUE(kernelForces(odd, x) == referenceForces(odd, x));
+}
+
+TEST(ForceKernel, PropertyEditsRefreshTheCachedEdgeStiffness) {
+  Model model = withAngles(makeTorus(20, 12), 0.0);
+  const Points x = deformed(model, 0.2, 24);
+  ForceKernel kernel(model, 1);
+  std::vector<Index> edited{7, 8, 100};
+  for (Index v : edited) model.properties.stiffness[v] *= 3.0;
+  kernel.propertiesChanged(model, edited);
+  Points f(x.rows(), 3);
+  kernel.compute(model, x, f, 1);
+  EXPECT_TRUE(f == referenceForces(model, x));
+  model.properties.stiffness.setConstant(2.0);
+  kernel.rebuild(model);
+  kernel.compute(model, x, f, 1);
+  EXPECT_TRUE(f == referenceForces(model, x));
+}
+
+TEST(Threads, ForcesAndStepsAreBitIdenticalWhateverTheThreadCount) {
+  // 20000 vertices: several blocks, halos between them, both code paths of the angles.
+  Model model = withAngles(makeTorus(200, 100), 0.3, 0.01, 9.5);
+  model.properties.angularStiffness.segment(5000, 300).setZero();
+  model.properties.damping.setConstant(0.02);
+  const Points x = deformed(model, 0.05, 25);
+  EXPECT_TRUE(kernelForces(model, x, 1) == kernelForces(model, x, 2));
+  EXPECT_TRUE(kernelForces(model, x, 2) == kernelForces(model, x, 3));
+  const double dt = 0.4 * criticalPeriod(SystemMatrices(model));
+  Points external = Points::Zero(x.rows(), 3);
+  for (Scheme scheme : {Scheme::Default, Scheme::Paper, Scheme::SymplecticEuler}) {
+    std::vector<State> finals;
+    for (int threads : {1, 2, 3}) {
+      StepperOptions options;
+      options.threads = threads;
+      Stepper stepper(model, scheme, scheme == Scheme::SymplecticEuler ? dt / 2 : dt, options);
+      State s = perturbed(model, 0.05, 26);
+      for (int k = 0; k < 12; ++k) {
+        external.setZero();
+        if (k % 5 == 1) external.row(17) << 0.5, 0.0, -0.2;  // loads on and off
+        stepper.step(s, external);
+      }
+      finals.push_back(s);
+    }
+    for (size_t k = 1; k < finals.size(); ++k) {
+      EXPECT_TRUE(finals[k].position == finals[0].position) << schemeName(scheme);
+      EXPECT_TRUE(finals[k].velocity == finals[0].velocity) << schemeName(scheme);
+    }
+  }
+}
+
+TEST(Stepper, LastTotalForceIsTheTotalForceAtTheStartOfTheStep) {
+  UniformProperties u;
+  u.angularStiffness = 0.2;
+  u.gravity = Vec3(0.0, 0.0, -9.81);
+  const Model model = Model::fromMesh(makeTorus(12, 8), u);
+  const double dt = 0.3 * criticalPeriod(SystemMatrices(model));
+  for (Scheme scheme : {Scheme::Default, Scheme::Paper, Scheme::SymplecticEuler}) {
+    Stepper stepper(model, scheme, dt);
+    State s = perturbed(model, 0.05, 27);
+    Points external = Points::Zero(model.mesh.numVertices(), 3);
+    for (int k = 0; k < 6; ++k) {
+      external.setZero();
+      if (k >= 3) external.row(4) << 1.0, 2.0, 3.0;
+      ForceKernel kernel(model, 1);
+      Points expected(model.mesh.numVertices(), 3);
+      kernel.compute(model, s.position, expected, 1);
+      expected += external;
+      accumulateGravity(model.properties, s.position, expected);
+      stepper.step(s, external);
+      EXPECT_TRUE(stepper.lastTotalForce() == expected) << schemeName(scheme) << " step " << k;
+    }
+  }
 }

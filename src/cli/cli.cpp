@@ -15,6 +15,10 @@ int run(int argc, char** argv) {
   addInfoCommand(app, commands);
   addSimulateCommand(app, commands);
   addReproduceCommand(app, commands);
+  addBenchCommand(app, commands);
+  addSubdivideCommand(app, commands);
+  addOpenCommand(app, commands);
+  addReplayCommand(app, commands);
   try {
     app.parse(argc, argv);
   } catch (const CLI::CallForHelp& e) {

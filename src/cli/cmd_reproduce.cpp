@@ -20,6 +20,7 @@ const std::vector<std::pair<std::string, std::function<int(const ReproduceOption
       list = {
           {"table1", reproduceTable1},
           {"figure3", reproduceFigure3},
+          {"figure5", reproduceFigure5},
       };
   return list;
 }

@@ -1,14 +1,18 @@
 // zsculpt simulate MESH|SCENE: headless simulation with diagnostics (cli.md).
 
+#include <algorithm>
 #include <chrono>
 #include <filesystem>
 #include <cmath>
 #include <iostream>
+#include <optional>
 #include <sstream>
 
 #include "commands.h"
 #include "model_options.h"
 #include "zsculpt/core/errors.h"
+#include "zsculpt/editing/local_update.h"
+#include "zsculpt/editing/scene_edits.h"
 #include "zsculpt/io/atomic_file.h"
 #include "zsculpt/io/state_io.h"
 
@@ -19,6 +23,47 @@ namespace {
 struct SimulateOptions {
   ModelOptions model;
   RunOptions run;
+  bool verifyMatrices = false;
+};
+
+/// The scene's timed edits (paper section 3, "Dynamic Editing"), applied between cycles
+/// with the local matrix update; with --verify-matrices each is checked against a rebuild.
+struct SceneEdits {
+  editing::EditSchedule schedule;
+  std::optional<editing::Editor> editor;
+  std::string source;
+  bool verify = false;
+  long applied = 0;
+  double maxDifference = 0.0;
+
+  SceneEdits(const LoadedModel& loaded, const Simulation& sim, bool verifyMatrices)
+      : source(loaded.source), verify(verifyMatrices) {
+    if (loaded.scene) schedule = editing::scheduleFromScene(loaded.scene->edits);
+    if (schedule.size()) editor.emplace(sim.model().mesh, sim.model().angles);
+  }
+
+  void beforeStep(Simulation& sim) {
+    if (schedule.finished()) return;
+    // A millionth of a period absorbs the rounding of the accumulated time.
+    for (const editing::TimedEdit& edit : schedule.due(sim.time(), 1e-6 * sim.period())) {
+      editing::EditResult result;
+      try {
+        result = editor->apply({sim.model().mesh, sim.model().angles, sim.mutableProperties()},
+                               sim.state(), edit.command);
+      } catch (const InvalidInputError& e) {
+        throw InvalidInputError(source + ": /edits/" + std::to_string(edit.source) + ": " +
+                                e.what());
+      }
+      if (!result.changed) continue;
+      ++applied;
+      sim.propertiesChanged(result.matrixRows);  // local, even for global edits
+      if (verify)
+        maxDifference = std::max(
+            maxDifference, editing::verifyAgainstRebuild(sim.model(), sim.stepper().system(),
+                                                         sim.stepper().transformation())
+                               .maxAbs());
+    }
+  }
 };
 
 int runSimulate(const SimulateOptions& options) {
@@ -26,6 +71,9 @@ int runSimulate(const SimulateOptions& options) {
   const RunOptions::Resolved resolved = options.run.resolve(loaded);
   Simulation sim(loaded.model, resolved.settings);
   options.run.prepare(loaded, sim);
+  for (const std::string& warning : sim.takeWarnings())
+    std::cerr << "zsculpt: warning: " << loaded.source << ": " << warning << "\n";
+  SceneEdits edits(loaded, sim, options.verifyMatrices);
   // Check the output folders before any work.
   for (const std::string* path : {&options.run.csv, &options.run.stateOut})
     if (!path->empty()) {
@@ -56,6 +104,7 @@ int runSimulate(const SimulateOptions& options) {
   const auto wallStart = std::chrono::steady_clock::now();
   for (long k = 1; k <= steps; ++k) {
     try {
+      edits.beforeStep(sim);
       sim.step();
     } catch (const DivergenceError&) {
       diverged = true;
@@ -105,8 +154,19 @@ int runSimulate(const SimulateOptions& options) {
               << "  \"energy_end\": " << jsonNumber(last.total()) << ",\n"
               << "  \"energy_drift\": " << jsonNumber(energyDrift) << ",\n"
               << "  \"momentum_drift\": " << jsonNumber(momentumDrift) << ",\n"
-              << "  \"angular_momentum_drift\": " << jsonNumber(angularDrift) << ",\n"
-              << "  \"wall_seconds\": " << jsonNumber(wall) << "\n"
+              << "  \"angular_momentum_drift\": " << jsonNumber(angularDrift) << ",\n";
+    if (edits.schedule.size() || options.verifyMatrices)
+      std::cout << "  \"edits_applied\": " << edits.applied << ",\n";
+    if (options.verifyMatrices)
+      std::cout << "  \"matrix_update_max_abs_diff\": " << jsonNumber(edits.maxDifference)
+                << ",\n";
+    if (!sim.constraints().empty()) {
+      // Momentum the constraints put in (N s): p_end - p_start = loads + gravity + this.
+      const Vec3& j = sim.impulses().constraints;
+      std::cout << "  \"constraint_impulse\": [" << jsonNumber(j.x()) << ", " << jsonNumber(j.y())
+                << ", " << jsonNumber(j.z()) << "],\n";
+    }
+    std::cout << "  \"wall_seconds\": " << jsonNumber(wall) << "\n"
               << "}\n";
   } else {
     std::cout << "scheme " << schemeName(resolved.settings.scheme) << ", dt "
@@ -116,6 +176,12 @@ int runSimulate(const SimulateOptions& options) {
               << energyDrift << "), momentum drift " << momentumDrift
               << ", angular momentum drift " << angularDrift << "\n"
               << "wall " << wall << " s\n";
+    if (edits.schedule.size() || options.verifyMatrices) {
+      std::cout << "edits applied " << edits.applied;
+      if (options.verifyMatrices)
+        std::cout << ", matrix update max abs diff " << edits.maxDifference;
+      std::cout << "\n";
+    }
   }
   if (diverged) {
     std::cerr << "zsculpt: error: " << loaded.source << ": the simulation diverged at step "
@@ -134,6 +200,8 @@ void addSimulateCommand(CLI::App& root, CommandList& commands) {
   auto options = std::make_shared<SimulateOptions>();
   options->model.addTo(app);
   options->run.addTo(app);
+  app->add_flag("--verify-matrices", options->verifyMatrices,
+                "after every edit, compare the locally updated matrices with a full rebuild");
   commands.push_back({app, [options]() { return runSimulate(*options); }});
 }
 

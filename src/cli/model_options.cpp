@@ -89,6 +89,11 @@ void RunOptions::addTo(CLI::App* app) {
   app->add_option("--csv", csv, "diagnostics, one row per step");
   app->add_option("--force", forces, "I:FX,FY,FZ[:T0:T1] force at vertex I (repeatable)");
   app->add_option("--torque", torques, "I:TX,TY,TZ[:T0:T1] torque at vertex I (repeatable)");
+  app->add_option("--pin", pins,
+                  "I[:X,Y,Z] hold vertex I at X,Y,Z (default: where it starts; repeatable)");
+  app->add_option("--pin-normal", pinNormals,
+                  "I[:NX,NY,NZ] hold the normal at vertex I (default: its starting normal; "
+                  "repeatable)");
   app->add_flag("--allow-unstable", allowUnstable,
                 "run even above the scheme's stable limit (to watch it diverge)");
   app->add_flag("--json", json, "a JSON summary on standard output");
@@ -130,6 +135,28 @@ TimedLoad parseTimedLoad(const std::string& text, const std::string& flag) {
     if (!(load.end >= load.start)) throw InvalidInputError(what + ": T1 is before T0");
   }
   return load;
+}
+
+VertexVector parseVertexVector(const std::string& text, const std::string& flag) {
+  const std::string what = flag + " " + text;
+  const auto colon = text.find(':');
+  VertexVector out;
+  const std::string index = text.substr(0, colon);
+  const double vertex = parseNumber(index, what);
+  if (vertex != std::floor(vertex) || vertex < 0 || vertex > 2e9)
+    throw InvalidInputError(what + ": '" + index + "' is not a vertex index");
+  out.vertex = static_cast<Index>(vertex);
+  if (colon == std::string::npos) return out;
+  std::vector<std::string> xyz;
+  std::stringstream in(text.substr(colon + 1));
+  std::string part;
+  while (std::getline(in, part, ',')) xyz.push_back(part);
+  if (xyz.size() != 3 || text.back() == ',')
+    throw InvalidInputError(what + ": expected I or I:X,Y,Z");
+  Vec3 value;
+  for (int c = 0; c < 3; ++c) value[c] = parseNumber(xyz[static_cast<size_t>(c)], what);
+  out.value = value;
+  return out;
 }
 
 RunOptions::Resolved RunOptions::resolve(const LoadedModel& loaded) const {
@@ -210,6 +237,36 @@ void RunOptions::prepare(const LoadedModel& loaded, Simulation& sim) const {
   }
   for (const std::string& f : forces) sim.addForce(parseTimedLoad(f, "--force"));
   for (const std::string& t : torques) sim.addTorque(parseTimedLoad(t, "--torque"));
+  // Constraints (section 6): the scene's, then the flags'. Errors name where they came from.
+  if (loaded.scene)
+    for (size_t k = 0; k < loaded.scene->constraints.size(); ++k) {
+      const io::ConstraintSpec& c = loaded.scene->constraints[k];
+      try {
+        if (c.type == io::ConstraintType::Position)
+          sim.addPositionConstraint(c.vertex, c.target);
+        else
+          sim.addNormalConstraint(c.vertex, c.normal);
+      } catch (const InvalidInputError& e) {
+        throw InvalidInputError(loaded.source + ": /constraints/" + std::to_string(k) + ": " +
+                                e.what());
+      }
+    }
+  auto constrain = [&](const std::vector<std::string>& texts, const std::string& flag,
+                       bool position) {
+    for (const std::string& text : texts) {
+      const VertexVector v = parseVertexVector(text, flag);
+      try {
+        if (position)
+          sim.addPositionConstraint(v.vertex, v.value);
+        else
+          sim.addNormalConstraint(v.vertex, v.value);
+      } catch (const InvalidInputError& e) {
+        throw InvalidInputError(flag + " " + text + ": " + e.what());
+      }
+    }
+  };
+  constrain(pins, "--pin", true);
+  constrain(pinNormals, "--pin-normal", false);
 }
 
 std::string jsonNumber(double value) {

@@ -43,6 +43,7 @@ struct RunOptions {
   std::optional<unsigned> seed;
   std::string stateIn, stateOut, csv;
   std::vector<std::string> forces, torques;
+  std::vector<std::string> pins, pinNormals;
   bool allowUnstable = false;
   bool json = false;
 
@@ -56,9 +57,17 @@ struct RunOptions {
     double tMax = 0.0;
   };
   [[nodiscard]] Resolved resolve(const LoadedModel& loaded) const;
-  /// Initial state (rest, --state-in, --perturb) and loads (scene and flags) on `sim`.
+  /// Initial state (rest, --state-in, --perturb), loads and constraints (scene, then flags)
+  /// on `sim`. A constraint without a target or normal holds the initial state's.
   void prepare(const LoadedModel& loaded, Simulation& sim) const;
 };
+
+/// "I" or "I:X,Y,Z" (--pin, --pin-normal); throws InvalidInputError naming the flag.
+struct VertexVector {
+  Index vertex = 0;
+  std::optional<Vec3> value;
+};
+VertexVector parseVertexVector(const std::string& text, const std::string& flag);
 
 /// "I:FX,FY,FZ[:T0:T1]" as in cli.md; throws InvalidInputError naming the flag.
 TimedLoad parseTimedLoad(const std::string& text, const std::string& flag);

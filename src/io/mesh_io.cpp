@@ -291,12 +291,14 @@ Mesh meshFromScene(const aiScene& scene, const std::string& name, MeshLoadReport
                                 std::to_string(m) + " has a non-finite coordinate");
       welded[v] = welder.add(p);
     }
+    // A copy: clang 14 cannot capture a structured binding in a lambda (the fuzz build).
+    const unsigned meshIndex = m;
     auto addPrimitive = [&](const unsigned* indices, unsigned count, unsigned f) {
       if (indices == nullptr) count = 0;
       for (unsigned k = 0; k < count; ++k)
         if (indices[k] >= mesh->mNumVertices)
           throw InvalidInputError(name + ": face " + std::to_string(f) + " of mesh " +
-                                  std::to_string(m) + " refers to vertex " +
+                                  std::to_string(meshIndex) + " refers to vertex " +
                                   std::to_string(indices[k]) + ", out of range [0, " +
                                   std::to_string(mesh->mNumVertices) + ")");
       if (count < 2) {

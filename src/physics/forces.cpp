@@ -1,7 +1,14 @@
 #include "zsculpt/physics/forces.h"
 
 #include <Eigen/Eigenvalues>
+#include <algorithm>
+#include <bit>
 #include <cmath>
+#include <numbers>
+
+#ifdef _OPENMP
+#include <omp.h>
+#endif
 
 namespace zsculpt {
 
@@ -160,6 +167,783 @@ PotentialEnergy potentialEnergy(const Model& model, const Points& position) {
   for (Index i = 0; i < position.rows(); ++i)
     energy.gravity -= p.mass[i] * p.gravity.dot(position.row(i).transpose());
   return energy;
+}
+
+// ---- ForceKernel ------------------------------------------------------------------------------
+
+namespace {
+
+int threadNumber() {
+#ifdef _OPENMP
+  return omp_get_thread_num();
+#else
+  return 0;
+#endif
+}
+
+int availableThreads() {
+#ifdef _OPENMP
+  return std::max(omp_get_max_threads(), omp_get_num_procs());
+#else
+  return 1;
+#endif
+}
+
+bool inParallel() {
+#ifdef _OPENMP
+  return omp_in_parallel() != 0;
+#else
+  return false;
+#endif
+}
+
+// Vertices per block: big enough that the halo (vertices of other blocks reached by an
+// angle spring) stays a small fraction on meshes stored in a local order, small enough to
+// balance two threads. Depends on nothing but the vertex count (determinism).
+constexpr Index kBlockVertices = 8192;
+// Shortest run of equal-degree vertices worth the transposed angle path.
+constexpr Index kMinRun = 8;
+
+constexpr double kPi = std::numbers::pi;
+constexpr double kHalfPi = std::numbers::pi / 2;
+constexpr double kQuarterPi = std::numbers::pi / 4;
+// pi/2 - kHalfPi: the low bits of pi/2 (Cephes' MOREBITS).
+constexpr double kMoreBits = 6.123233995736765886130e-17;
+
+// atan2(s, c) for s >= 0, as the angle between two arms from |u x w| and u . w: branch-free
+// so that a batch of them vectorises (glibc's atan2 is a call the compiler cannot).
+// Reduced to |x| <= tan(pi/8), then Cephes' rational approximation of atan (S. Moshier;
+// relative error about 2e-16 on |x| <= 0.66). Accurate near 0 and pi, like atan2.
+// cond ? a : b on the bits, with both operands computed: with trapping math the compiler
+// neither speculates a floating-point operation out of a branch nor may it sink one into a
+// branch here, so the loops below have no control flow and vectorise.
+inline double select(bool cond, double a, double b) {
+  const std::uint64_t mask = std::uint64_t{0} - static_cast<std::uint64_t>(cond);
+  return std::bit_cast<double>((std::bit_cast<std::uint64_t>(a) & mask) |
+                               (std::bit_cast<std::uint64_t>(b) & ~mask));
+}
+
+// The kernels below are built twice: for AVX2 (4 doubles at a time; chosen at load time
+// where the processor has it) and for the x86-64 baseline. Neither contracts to FMA and both
+// do the same operations in the same order, so they round alike: the forces do not depend
+// on the machine's choice. Square roots go through Eigen's packet sqrt in a pass of their
+// own: std::sqrt in a loop keeps its errno path, and the loop scalar.
+#define ZSCULPT_KERNEL __attribute__((target_clones("avx2", "default")))
+
+// Radial springs and arms of one chunk, per half-edge j (from v to w, edge e), after
+// squaredLength[j] = |r_w - r_v|^2 was turned into the length: the force on v,
+// kappa (l - lambda) / l (r_w - r_v), which is radialSpringForce's force on v rounding for
+// rounding (the reference computes -kappa (l - lambda) / l (r_v - r_w), and IEEE rounding is
+// symmetric in the sign); kappa (r_w - r_v) for a zero rest length (equation 1). The arm
+// (r_w - r_v) in ax, ay, az becomes its unit vector.
+ZSCULPT_KERNEL void radialBatch(Index count, const Index* __restrict edge,
+                                const double* __restrict edgeKappa,
+                                const double* __restrict restLength, double* __restrict ax,
+                                double* __restrict ay, double* __restrict az,
+                                const double* __restrict length, double* __restrict il,
+                                double* __restrict gx, double* __restrict gy,
+                                double* __restrict gz) {
+#pragma omp simd
+  for (Index j = 0; j < count; ++j) {
+    const double kappa = edgeKappa[edge[j]], rest = restLength[edge[j]], l = length[j];
+    const bool positive = l > 0.0;
+    const double safe = select(positive, l, 1.0);
+    const double stretched = select(positive, kappa * (l - rest) / safe, 0.0);
+    const double coefficient = select(kappa == 0.0, 0.0, select(rest == 0.0, kappa, stretched));
+    const double inv = select(positive, 1.0 / safe, 0.0);
+    const double ux = ax[j], uy = ay[j], uz = az[j];
+    gx[j] = coefficient * ux;
+    gy[j] = coefficient * uy;
+    gz[j] = coefficient * uz;
+    ax[j] = ux * inv;
+    ay[j] = uy * inv;
+    az[j] = uz * inv;
+    il[j] = inv;
+  }
+}
+
+// beta = (theta - theta_0) / sin(theta), theta = atan2(sin, cos) in [0, pi]; zero when the
+// sine is 1e-12 or less (those angles are the caller's: angleSpringForce handles them).
+//
+// atan2 without a call: reduced to |x| <= tan(pi/8) (x = min / max of |sin|, |cos|, or
+// (min - max) / (min + max) beyond tan(pi/8)), then Cephes' rational atan (S. Moshier,
+// relative error 2e-16 on |x| <= 0.66) written homogeneously in (num, den) so that atan x,
+// and 1 / sin with it, cost one division. The arms are unit vectors, so max(|sin|, |cos|)
+// >= 1/sqrt(2) and nothing under- or overflows.
+inline double angleBeta(double s, double c, double rest) {
+  constexpr double p0 = -8.750608600031904122785e-1, p1 = -1.615753718733365076637e1,
+                   p2 = -7.500855792314704667340e1, p3 = -1.228866684490136173410e2,
+                   p4 = -6.485021904942025371773e1;
+  constexpr double q0 = 2.485846490142306297962e1, q1 = 1.650270098316988542046e2,
+                   q2 = 4.328810604912902668951e2, q3 = 4.853903996359136964868e2,
+                   q4 = 1.945506571482613964425e2;
+  const double ac = std::abs(c);
+  const bool sinLarger = s > ac;
+  const double mx = select(sinLarger, s, ac);
+  const double mn = select(sinLarger, ac, s);
+  const bool reduce = mn > 0.41421356237309504880 * mx;
+  const double num = select(reduce, mn - mx, mn);
+  const double den = select(reduce, mn + mx, mx);
+  // atan(num / den) = num (Q~ + n2 P~) / (den Q~), P~ and Q~ the homogeneous forms of
+  // Cephes' P(z) and Q(z) at z = n2 / d2.
+  const double n2 = num * num, d2 = den * den, d4 = d2 * d2, d6 = d4 * d2, d8 = d4 * d4;
+  const double pt = (((p0 * n2 + p1 * d2) * n2 + p2 * d4) * n2 + p3 * d6) * n2 + p4 * d8;
+  const double qt =
+      ((((n2 + q0 * d2) * n2 + q1 * d4) * n2 + q2 * d6) * n2 + q3 * d8) * n2 + q4 * d8 * d2;
+  const bool regular = s > 1e-12;
+  const double safeSine = select(regular, s, 1.0);
+  const double denominator = select(regular, den * qt, 1.0);
+  const double inv = 1.0 / (denominator * safeSine);
+  const double t0 = num * (qt + n2 * pt) * safeSine * inv;
+  const double t1 = select(reduce, kQuarterPi + (t0 + 0.5 * kMoreBits), t0);
+  const double t2 = select(sinLarger, (kHalfPi - t1) + kMoreBits, t1);
+  const double theta = select(c < 0.0, (kPi - t2) + 2.0 * kMoreBits, t2);
+  return select(regular, (theta - rest) * (denominator * inv), 0.0);
+}
+
+// The angle springs, kappa_theta left out (section 5.2): the forces on the ends of unit arms
+// u (inverse length iu) and w (iw) are beta iu (w - cos u) and beta iw (u - cos w), the
+// gradient form of angleSpringForce. (A macro: structs or arrays in the loop body keep GCC
+// from vectorising it.)
+#define ZSCULPT_ANGLE_FORCE(beta, c, ux, uy, uz, iu, wx, wy, wz, iw, FA0, FA1, FA2, FB0, FB1, \
+                            FB2)                                                           \
+  do {                                                                                     \
+    const double sa_ = (beta) * (iu), sb_ = (beta) * (iw);                                 \
+    FA0 = sa_ * ((wx) - (c) * (ux));                                                      \
+    FA1 = sa_ * ((wy) - (c) * (uy));                                                      \
+    FA2 = sa_ * ((wz) - (c) * (uz));                                                      \
+    FB0 = sb_ * ((ux) - (c) * (wx));                                                      \
+    FB1 = sb_ * ((uy) - (c) * (wy));                                                      \
+    FB2 = sb_ * ((uz) - (c) * (wz));                                                      \
+  } while (0)
+
+// Cosine and squared sine of the angle between the unit arms p[k] and q[k].
+ZSCULPT_KERNEL void angleCosSin(Index m, const Index* __restrict p, const Index* __restrict q,
+                                const double* __restrict ax, const double* __restrict ay,
+                                const double* __restrict az, double* __restrict cosine,
+                                double* __restrict sine2) {
+#pragma omp simd
+  for (Index k = 0; k < m; ++k) {
+    const Index i = p[k], j = q[k];
+    const double ux = ax[i], uy = ay[i], uz = az[i];
+    const double wx = ax[j], wy = ay[j], wz = az[j];
+    cosine[k] = ux * wx + uy * wy + uz * wz;
+    const double cx = uy * wz - uz * wy, cy = uz * wx - ux * wz, cz = ux * wy - uy * wx;
+    sine2[k] = cx * cx + cy * cy + cz * cz;
+  }
+}
+
+// Forces of a batch of angles with arms p[k], q[k] (indices into the arm arrays); the
+// first arm's force goes to fa[k], the second's to fb[k]. Returns the smallest sine.
+ZSCULPT_KERNEL double angleForces(Index m, const Index* __restrict p, const Index* __restrict q,
+                                  const double* __restrict ax, const double* __restrict ay,
+                                  const double* __restrict az, const double* __restrict il,
+                                  const double* __restrict sine,
+                                  const double* __restrict cosine,
+                                  const double* __restrict rest, double* __restrict fax,
+                                  double* __restrict fay, double* __restrict faz,
+                                  double* __restrict fbx, double* __restrict fby,
+                                  double* __restrict fbz) {
+  double smallest = 1.0;
+#pragma omp simd reduction(min : smallest)
+  for (Index k = 0; k < m; ++k) {
+    const double s = sine[k], c = cosine[k];
+    smallest = std::min(smallest, s);
+    const double beta = angleBeta(s, c, rest[k]);
+    const Index i = p[k], j = q[k];
+    ZSCULPT_ANGLE_FORCE(beta, c, ax[i], ay[i], az[i], il[i], ax[j], ay[j], az[j], il[j], fax[k],
+                        fay[k], faz[k], fbx[k], fby[k], fbz[k]);
+  }
+  return smallest;
+}
+
+// A run of L vertices of one degree with every angle spring on: the arms transposed by slot
+// (arm a of the run's vertex i at a L + i), angle (a, b) = pair k of vertex i at k L + i
+// (its rest angle at rest[k + pairs i]). Same arithmetic as angleCosSin and angleForces,
+// vectorised across the vertices without gathers.
+ZSCULPT_KERNEL void runCosSin(Index pairs, Index count, const Index* __restrict pairA,
+                              const Index* __restrict pairB, const double* __restrict ax,
+                              const double* __restrict ay, const double* __restrict az,
+                              double* __restrict cosine, double* __restrict sine2) {
+  for (Index k = 0; k < pairs; ++k) {
+    const double* __restrict ux = ax + pairA[k] * count;
+    const double* __restrict uy = ay + pairA[k] * count;
+    const double* __restrict uz = az + pairA[k] * count;
+    const double* __restrict wx = ax + pairB[k] * count;
+    const double* __restrict wy = ay + pairB[k] * count;
+    const double* __restrict wz = az + pairB[k] * count;
+    double* __restrict co = cosine + k * count;
+    double* __restrict si = sine2 + k * count;
+#pragma omp simd
+    for (Index i = 0; i < count; ++i) {
+      co[i] = ux[i] * wx[i] + uy[i] * wy[i] + uz[i] * wz[i];
+      const double cx = uy[i] * wz[i] - uz[i] * wy[i], cy = uz[i] * wx[i] - ux[i] * wz[i],
+                   cz = ux[i] * wy[i] - uy[i] * wx[i];
+      si[i] = cx * cx + cy * cy + cz * cz;
+    }
+  }
+}
+
+ZSCULPT_KERNEL double runForces(Index pairs, Index count, const Index* __restrict pairA,
+                                const Index* __restrict pairB, const double* __restrict ax,
+                                const double* __restrict ay, const double* __restrict az,
+                                const double* __restrict il, const double* __restrict sine,
+                                const double* __restrict cosine, const double* __restrict rest,
+                                double* __restrict fax, double* __restrict fay,
+                                double* __restrict faz, double* __restrict fbx,
+                                double* __restrict fby, double* __restrict fbz) {
+  double smallest = 1.0;
+  for (Index k = 0; k < pairs; ++k) {
+    const Index a = pairA[k] * count, b = pairB[k] * count, o = k * count;
+#pragma omp simd reduction(min : smallest)
+    for (Index i = 0; i < count; ++i) {
+      const double s = sine[o + i], c = cosine[o + i];
+      smallest = std::min(smallest, s);
+      const double beta = angleBeta(s, c, rest[k + pairs * i]);
+      ZSCULPT_ANGLE_FORCE(beta, c, ax[a + i], ay[a + i], az[a + i], il[a + i], ax[b + i],
+                          ay[b + i], az[b + i], il[b + i], fax[o + i], fay[o + i], faz[o + i],
+                          fbx[o + i], fby[o + i], fbz[o + i]);
+    }
+  }
+  return smallest;
+}
+
+}  // namespace
+
+ForceKernel::ForceKernel(const Model& model, int maxThreads) {
+  const Mesh& mesh = model.mesh;
+  const Index n = mesh.numVertices();
+  const CsrIndex& neighbours = mesh.vertexNeighborTable();
+  const Index* off = neighbours.offsets.data();
+  const Index* nbr = neighbours.indices.data();
+
+  // Blocks of consecutive vertices, an even count when there is more than one.
+  Index blocks = std::max<Index>(1, (n + kBlockVertices - 1) / kBlockVertices);
+  if (blocks > 1 && blocks % 2 == 1) ++blocks;
+  blockStart_.resize(static_cast<size_t>(blocks) + 1);
+  for (Index b = 0; b <= blocks; ++b)
+    blockStart_[static_cast<size_t>(b)] =
+        static_cast<Index>(static_cast<std::int64_t>(n) * b / blocks);
+
+  // Does the angle table follow buildAngleTable's layout? Otherwise find every angle's arms.
+  const AngleTable& angles = model.angles;
+  if (static_cast<Index>(angles.vertexOffsets.size()) != n + 1) {
+    reference_ = true;
+  } else {
+    for (Index v = 0; v < n && canonicalAngles_; ++v) {
+      const Index degree = off[v + 1] - off[v];
+      Index k = angles.vertexOffsets[static_cast<size_t>(v)];
+      if (angles.vertexOffsets[static_cast<size_t>(v) + 1] - k != degree * (degree - 1) / 2) {
+        canonicalAngles_ = false;
+        break;
+      }
+      for (Index a = 0; a < degree && canonicalAngles_; ++a)
+        for (Index b = a + 1; b < degree; ++b, ++k) {
+          const auto& angle = angles.angles[static_cast<size_t>(k)];
+          const Index na = nbr[off[v] + a], nb = nbr[off[v] + b];
+          if (angle[0] != v || angle[1] != std::min(na, nb) || angle[2] != std::max(na, nb)) {
+            canonicalAngles_ = false;
+            break;
+          }
+        }
+    }
+    if (!canonicalAngles_) {
+      angleArm_.resize(2 * angles.angles.size());
+      for (Index v = 0; v < n && !reference_; ++v)
+        for (Index k = angles.vertexOffsets[static_cast<size_t>(v)];
+             k < angles.vertexOffsets[static_cast<size_t>(v) + 1]; ++k) {
+          const auto& angle = angles.angles[static_cast<size_t>(k)];
+          if (angle[0] != v) {
+            reference_ = true;
+            break;
+          }
+          for (int arm = 0; arm < 2; ++arm) {
+            const Index* begin = nbr + off[v];
+            const Index* end = nbr + off[v + 1];
+            const Index* it = std::find(begin, end, angle[static_cast<size_t>(arm) + 1]);
+            if (it == end) {
+              reference_ = true;
+              break;
+            }
+            angleArm_[2 * static_cast<size_t>(k) + static_cast<size_t>(arm)] =
+                static_cast<Index>(it - nbr);
+          }
+        }
+    }
+  }
+
+  // Halo of every block: the vertices of other blocks next to its vertices, sorted.
+  target_.resize(neighbours.indices.size());
+  std::vector<Index> stamp(static_cast<size_t>(n), -1), slot(static_cast<size_t>(n), 0);
+  std::vector<Index> list;
+  std::vector<std::array<Index, 3>> incoming;  // (vertex, halo position, source block)
+  haloStart_.assign(1, 0);
+  size_t maxAccumulator = 0;
+  for (Index b = 0; b < blocks; ++b) {
+    const Index v0 = blockStart_[static_cast<size_t>(b)], v1 = blockStart_[static_cast<size_t>(b) + 1];
+    list.clear();
+    for (Index h = off[v0]; h < off[v1]; ++h) {
+      const Index w = nbr[h];
+      if ((w < v0 || w >= v1) && stamp[static_cast<size_t>(w)] != b) {
+        stamp[static_cast<size_t>(w)] = b;
+        list.push_back(w);
+      }
+    }
+    std::sort(list.begin(), list.end());
+    for (size_t k = 0; k < list.size(); ++k) {
+      slot[static_cast<size_t>(list[k])] = static_cast<Index>(k);
+      incoming.push_back({list[k], haloStart_.back() + static_cast<Index>(k), b});
+    }
+    const Index length = v1 - v0;
+    for (Index h = off[v0]; h < off[v1]; ++h) {
+      const Index w = nbr[h];
+      target_[static_cast<size_t>(h)] =
+          (w >= v0 && w < v1) ? w - v0 : length + slot[static_cast<size_t>(w)];
+    }
+    haloStart_.push_back(haloStart_.back() + static_cast<Index>(list.size()));
+    maxAccumulator = std::max(maxAccumulator, 3 * (static_cast<size_t>(length) + list.size()));
+  }
+  halo_.assign(3 * static_cast<size_t>(haloStart_.back()), 0.0);
+  blockHasAngles_.assign(static_cast<size_t>(blocks), 0);
+  // Incoming contributions per receiving block, by row then source block (stable sort: the
+  // list is already in source block order).
+  std::stable_sort(incoming.begin(), incoming.end(),
+                   [](const auto& x, const auto& y) { return x[0] < y[0]; });
+  incomingStart_.assign(1, 0);
+  incomingRow_.resize(incoming.size());
+  incomingHalo_.resize(incoming.size());
+  incomingBlock_.resize(incoming.size());
+  size_t k = 0;
+  for (Index b = 0; b < blocks; ++b) {
+    const Index v0 = blockStart_[static_cast<size_t>(b)], v1 = blockStart_[static_cast<size_t>(b) + 1];
+    for (; k < incoming.size() && incoming[k][0] < v1; ++k) {
+      incomingRow_[k] = incoming[k][0] - v0;
+      incomingHalo_[k] = incoming[k][1];
+      incomingBlock_[k] = incoming[k][2];
+    }
+    incomingStart_.push_back(static_cast<Index>(k));
+  }
+
+  // Work space: the largest chunk of any block.
+  size_t maxArms = 0, maxAngles = 0;
+  for (Index b = 0; b < blocks; ++b) {
+    const Index v0 = blockStart_[static_cast<size_t>(b)], v1 = blockStart_[static_cast<size_t>(b) + 1];
+    for (Index c0 = v0; c0 < v1; c0 += chunkVertices_) {
+      const Index c1 = std::min(c0 + chunkVertices_, v1);
+      maxArms = std::max(maxArms, static_cast<size_t>(off[c1] - off[c0]));
+      if (!reference_)
+        maxAngles = std::max(maxAngles, static_cast<size_t>(angles.vertexOffsets[static_cast<size_t>(c1)] -
+                                                            angles.vertexOffsets[static_cast<size_t>(c0)]));
+    }
+  }
+  maxAngles_ = static_cast<Index>(maxAngles);
+  // Canonical tables for every degree up to the largest.
+  Index maxDegree = 0;
+  for (Index v = 0; v < n; ++v) maxDegree = std::max(maxDegree, off[v + 1] - off[v]);
+  pairStart_.assign(1, 0);
+  termStart_.assign(1, 0);
+  armTermStart_.assign(1, 0);
+  for (Index degree = 0; degree <= maxDegree && canonicalAngles_ && !reference_; ++degree) {
+    for (Index a = 0; a < degree; ++a)
+      for (Index b = a + 1; b < degree; ++b) {
+        pairA_.push_back(a);
+        pairB_.push_back(b);
+      }
+    pairStart_.push_back(static_cast<Index>(pairA_.size()));
+    // termStart_[degree] is where this degree's arms start in armTermStart_.
+    termStart_.back() = static_cast<Index>(armTermStart_.size()) - 1;
+    for (Index arm = 0; arm < degree; ++arm) {
+      Index k = 0;
+      for (Index a = 0; a < degree; ++a)
+        for (Index b = a + 1; b < degree; ++b, ++k) {
+          if (a == arm) armTerm_.push_back(k);
+          if (b == arm) armTerm_.push_back(k + maxAngles_);
+        }
+      armTermStart_.push_back(static_cast<Index>(armTerm_.size()));
+    }
+    termStart_.push_back(0);
+  }
+  const int threads = maxThreads > 0 ? maxThreads : availableThreads();
+  scratch_.resize(static_cast<size_t>(threads));
+  for (Scratch& s : scratch_) {
+    s.acc.resize(maxAccumulator);
+    for (auto* v : {&s.ax, &s.ay, &s.az, &s.length, &s.invLength, &s.gx, &s.gy, &s.gz, &s.tx,
+                    &s.ty, &s.tz, &s.tl})
+      v->resize(maxArms);
+    for (auto* v : {&s.armP, &s.armQ}) v->resize(maxAngles);
+    for (auto* v : {&s.rest, &s.cosine, &s.sine}) v->resize(maxAngles);
+    for (auto* v : {&s.fx, &s.fy, &s.fz}) v->resize(2 * maxAngles);
+  }
+  rebuild(model);
+}
+
+void ForceKernel::rebuild(const Model& model) {
+  const Mesh& mesh = model.mesh;
+  const PhysicalProperties& p = model.properties;
+  edgeKappa_.resize(mesh.numEdges());
+  for (Index e = 0; e < mesh.numEdges(); ++e) {
+    const auto [i, j] = mesh.edge(e);
+    edgeKappa_[e] = edgeStiffness(p.stiffness[i], p.stiffness[j]);
+  }
+}
+
+void ForceKernel::propertiesChanged(const Model& model, std::span<const Index> vertices) {
+  const Mesh& mesh = model.mesh;
+  const PhysicalProperties& p = model.properties;
+  for (Index v : vertices)
+    for (Index e : mesh.vertexEdges(v)) {
+      const auto [i, j] = mesh.edge(e);
+      edgeKappa_[e] = edgeStiffness(p.stiffness[i], p.stiffness[j]);
+    }
+}
+
+size_t ForceKernel::bytes() const {
+  size_t total = 0;
+  for (const auto* v : {&blockStart_, &target_, &haloStart_, &incomingStart_, &incomingRow_,
+                        &incomingHalo_, &incomingBlock_, &angleArm_, &pairStart_, &pairA_,
+                        &pairB_, &termStart_, &armTermStart_, &armTerm_})
+    total += v->capacity() * sizeof(Index);
+  total += halo_.capacity() * sizeof(double) + blockHasAngles_.capacity() +
+           static_cast<size_t>(edgeKappa_.size()) * sizeof(double);
+  for (const Scratch& s : scratch_) {
+    for (const auto* v : {&s.acc, &s.ax, &s.ay, &s.az, &s.length, &s.invLength, &s.gx, &s.gy,
+                          &s.gz, &s.tx, &s.ty, &s.tz, &s.tl, &s.rest, &s.cosine, &s.sine, &s.fx,
+                          &s.fy, &s.fz})
+      total += v->capacity() * sizeof(double);
+    for (const auto* v : {&s.armP, &s.armQ}) total += v->capacity() * sizeof(Index);
+  }
+  return total;
+}
+
+void ForceKernel::compute(const Model& model, const Points& position, Points& force,
+                          int threads) {
+  if (inParallel()) {
+    scatter(model, position, force);
+#pragma omp for schedule(static)
+    for (Index b = 0; b < numBlocks(); ++b) gatherBlock(b, force);
+    return;
+  }
+  const int team = threads > 0 ? std::min(threads, maxThreads()) : maxThreads();
+  (void)team;
+#pragma omp parallel num_threads(team) if (team > 1)
+  {
+    scatter(model, position, force);
+#pragma omp for schedule(static)
+    for (Index b = 0; b < numBlocks(); ++b) gatherBlock(b, force);
+  }
+}
+
+void ForceKernel::scatter(const Model& model, const Points& position, Points& force) {
+  if (reference_) {
+#pragma omp single
+    {
+      force.setZero();
+      accumulateInternalForces(model, position, force);
+    }
+    return;
+  }
+  Scratch& scratch = scratch_[static_cast<size_t>(threadNumber())];
+  const Index blocks = numBlocks();
+#pragma omp for schedule(dynamic, 1)
+  for (Index b = 0; b < blocks; ++b) scatterBlock(model, position, force, b, scratch);
+}
+
+void ForceKernel::scatterBlock(const Model& model, const Points& position, Points& force,
+                               Index block, Scratch& s) {
+  const Mesh& mesh = model.mesh;
+  const PhysicalProperties& prop = model.properties;
+  const Index v0 = blockStart_[static_cast<size_t>(block)];
+  const Index v1 = blockStart_[static_cast<size_t>(block) + 1];
+  const Index length = v1 - v0;
+  const Index haloBegin = haloStart_[static_cast<size_t>(block)];
+  const Index haloLength = haloStart_[static_cast<size_t>(block) + 1] - haloBegin;
+  double* acc = s.acc.data();
+  std::fill(acc, acc + 3 * static_cast<size_t>(length + haloLength), 0.0);
+
+  const Index* off = mesh.vertexNeighborTable().offsets.data();
+  const Index* nbr = mesh.vertexNeighborTable().indices.data();
+  const Index* edge = mesh.vertexEdgeTable().indices.data();
+  const Index* angleOffsets = model.angles.vertexOffsets.data();
+  const double* r = position.data();
+  const double* kappaTheta = prop.angularStiffness.data();
+  const double* restAngle = prop.restAngle.data();
+  double* ax = s.ax.data();
+  double* ay = s.ay.data();
+  double* az = s.az.data();
+  double* il = s.invLength.data();
+  double* len = s.length.data();
+  const size_t second = static_cast<size_t>(maxAngles_);
+  bool anyAngle = false;
+
+  // Deposits the angle forces of centre v (row vertex - v0 of acc): kappa_theta times the
+  // force on the end of each arm h, in arm order, then minus their sum on the centre, then
+  // the degenerate angles (arms (anti)parallel or of zero length), whose direction
+  // angleSpringForce picks. force(arm, d) is the arm's summed force without kappa_theta;
+  // sine(k) and arms(k) describe the vertex's angle k.
+  auto deposit = [&](Index v, double kappa, auto&& armForce, bool checkDegenerate,
+                     auto&& sineOf, auto&& armsOf) {
+    double cx = 0.0, cy = 0.0, cz = 0.0;
+    for (Index h = off[v]; h < off[v + 1]; ++h) {
+      double f[3];
+      armForce(h - off[v], f);
+      const double fx = kappa * f[0], fy = kappa * f[1], fz = kappa * f[2];
+      double* t = acc + 3 * static_cast<size_t>(target_[static_cast<size_t>(h)]);
+      t[0] += fx;
+      t[1] += fy;
+      t[2] += fz;
+      cx += fx;
+      cy += fy;
+      cz += fz;
+    }
+    double* tc = acc + 3 * static_cast<size_t>(v - v0);
+    tc[0] -= cx;
+    tc[1] -= cy;
+    tc[2] -= cz;
+    if (!checkDegenerate) return;
+    const Index count = angleOffsets[v + 1] - angleOffsets[v];
+    for (Index k = 0; k < count; ++k) {
+      if (sineOf(k) > 1e-12) continue;
+      Index hp, hq;
+      armsOf(k, hp, hq);
+      Vec3 fc, fa, fb;
+      angleSpringForce(position.row(v), position.row(nbr[hp]), position.row(nbr[hq]), kappa,
+                       restAngle[angleOffsets[v] + k], fc, fa, fb);
+      double* ta = acc + 3 * static_cast<size_t>(target_[static_cast<size_t>(hp)]);
+      double* tb = acc + 3 * static_cast<size_t>(target_[static_cast<size_t>(hq)]);
+      for (int d = 0; d < 3; ++d) {
+        ta[d] += fa[d];
+        tb[d] += fb[d];
+        tc[d] += fc[d];
+      }
+    }
+  };
+
+  for (Index c0 = v0; c0 < v1; c0 += chunkVertices_) {
+    const Index c1 = std::min(c0 + chunkVertices_, v1);
+    const Index h0 = off[c0], arms = off[c1] - h0;
+    // Arms r_w - r_v and their squared lengths (the same sums as Vec3::norm's).
+    for (Index v = c0; v < c1; ++v) {
+      const double rx = r[3 * v], ry = r[3 * v + 1], rz = r[3 * v + 2];
+      for (Index h = off[v]; h < off[v + 1]; ++h) {
+        const Index w = nbr[h], j = h - h0;
+        const double ux = r[3 * w] - rx, uy = r[3 * w + 1] - ry, uz = r[3 * w + 2] - rz;
+        ax[j] = ux;
+        ay[j] = uy;
+        az[j] = uz;
+        len[j] = ux * ux + uy * uy + uz * uz;
+      }
+    }
+    Eigen::Map<Eigen::ArrayXd> lengths(len, arms);
+    lengths = lengths.sqrt();
+    radialBatch(arms, edge + h0, edgeKappa_.data(), prop.restLength.data(), ax, ay, az, len, il,
+                s.gx.data(), s.gy.data(), s.gz.data());
+    // Radial springs (section 5.1), gathered: each vertex adds its edges' forces in
+    // increasing edge index (Mesh::vertexEdges), as accumulateInternalForces does, so
+    // without angle springs the forces are bit-identical to the reference.
+    for (Index v = c0; v < c1; ++v) {
+      double fx = 0.0, fy = 0.0, fz = 0.0;
+      for (Index j = off[v] - h0; j < off[v + 1] - h0; ++j) {
+        fx += s.gx[static_cast<size_t>(j)];
+        fy += s.gy[static_cast<size_t>(j)];
+        fz += s.gz[static_cast<size_t>(j)];
+      }
+      double* own = acc + 3 * (v - v0);
+      own[0] += fx;
+      own[1] += fy;
+      own[2] += fz;
+    }
+
+    // Angle springs (section 5.2), centre by centre: runs of vertices of one degree with the
+    // springs on take the transposed path, the others the general one; both do the same
+    // arithmetic and deposit in vertex order, so the split changes nothing in the result.
+    Index v = c0;
+    while (v < c1) {
+      if (kappaTheta[v] == 0.0) {
+        ++v;
+        continue;
+      }
+      const Index degree = off[v + 1] - off[v];
+      Index u = v + 1;
+      if (canonicalAngles_)
+        while (u < c1 && kappaTheta[u] != 0.0 && off[u + 1] - off[u] == degree) ++u;
+      else
+        while (u < c1 && kappaTheta[u] != 0.0) ++u;
+      if (angleOffsets[u] == angleOffsets[v]) {
+        v = u;
+        continue;
+      }
+      anyAngle = true;
+      if (canonicalAngles_ && u - v >= kMinRun) {
+        // Transposed run: arm a of vertex i at a L + i.
+        const Index count = u - v, pairs = degree * (degree - 1) / 2;
+        const Index base = off[v] - h0;
+        for (Index i = 0; i < count; ++i)
+          for (Index a = 0; a < degree; ++a) {
+            const size_t from = static_cast<size_t>(base + degree * i + a);
+            const size_t to = static_cast<size_t>(a * count + i);
+            s.tx[to] = ax[from];
+            s.ty[to] = ay[from];
+            s.tz[to] = az[from];
+            s.tl[to] = il[from];
+          }
+        const Index* pa = pairA_.data() + pairStart_[static_cast<size_t>(degree)];
+        const Index* pb = pairB_.data() + pairStart_[static_cast<size_t>(degree)];
+        runCosSin(pairs, count, pa, pb, s.tx.data(), s.ty.data(), s.tz.data(), s.cosine.data(),
+                  s.sine.data());
+        Eigen::Map<Eigen::ArrayXd> sines(s.sine.data(), pairs * count);
+        sines = sines.sqrt();
+        const double smallest =
+            runForces(pairs, count, pa, pb, s.tx.data(), s.ty.data(), s.tz.data(), s.tl.data(),
+                      s.sine.data(), s.cosine.data(), restAngle + angleOffsets[v], s.fx.data(),
+                      s.fy.data(), s.fz.data(), s.fx.data() + second, s.fy.data() + second,
+                      s.fz.data() + second);
+        // Per arm, the sum of its angles' forces in angle order, for all vertices at once.
+        const Index* start = armTermStart_.data() + termStart_[static_cast<size_t>(degree)];
+        for (Index a = 0; a < degree; ++a) {
+          double* gx = s.gx.data() + a * count;
+          double* gy = s.gy.data() + a * count;
+          double* gz = s.gz.data() + a * count;
+          std::fill(gx, gx + count, 0.0);
+          std::fill(gy, gy + count, 0.0);
+          std::fill(gz, gz + count, 0.0);
+          for (Index t = start[a]; t < start[a + 1]; ++t) {
+            const Index term = armTerm_[static_cast<size_t>(t)];
+            const size_t at = static_cast<size_t>((term % maxAngles_) * count) +
+                              (term >= maxAngles_ ? second : 0);
+            const double* fx = s.fx.data() + at;
+            const double* fy = s.fy.data() + at;
+            const double* fz = s.fz.data() + at;
+            for (Index i = 0; i < count; ++i) {
+              gx[i] += fx[i];
+              gy[i] += fy[i];
+              gz[i] += fz[i];
+            }
+          }
+        }
+        for (Index i = 0; i < count; ++i) {
+          const Index w = v + i;
+          deposit(
+              w, kappaTheta[w],
+              [&](Index a, double* f) {
+                const size_t at = static_cast<size_t>(a * count + i);
+                f[0] = s.gx[at];
+                f[1] = s.gy[at];
+                f[2] = s.gz[at];
+              },
+              !(smallest > 1e-12),
+              [&](Index k) { return s.sine[static_cast<size_t>(k * count + i)]; },
+              [&](Index k, Index& hp, Index& hq) {
+                hp = off[w] + pa[k];
+                hq = off[w] + pb[k];
+              });
+        }
+      } else {
+        // General path: a batch of the range's angles with their arms' indices.
+        Index m = 0;
+        for (Index w = v; w < u; ++w) {
+          const Index first = angleOffsets[w], count = angleOffsets[w + 1] - first;
+          if (canonicalAngles_) {
+            const Index d = off[w + 1] - off[w], b = off[w] - h0;
+            const Index* pa = pairA_.data() + pairStart_[static_cast<size_t>(d)];
+            const Index* pb = pairB_.data() + pairStart_[static_cast<size_t>(d)];
+            for (Index k = 0; k < count; ++k) {
+              s.armP[static_cast<size_t>(m + k)] = b + pa[k];
+              s.armQ[static_cast<size_t>(m + k)] = b + pb[k];
+            }
+          } else {
+            for (Index k = 0; k < count; ++k) {
+              s.armP[static_cast<size_t>(m + k)] = angleArm_[2 * static_cast<size_t>(first + k)] - h0;
+              s.armQ[static_cast<size_t>(m + k)] =
+                  angleArm_[2 * static_cast<size_t>(first + k) + 1] - h0;
+            }
+          }
+          for (Index k = 0; k < count; ++k) s.rest[static_cast<size_t>(m + k)] = restAngle[first + k];
+          m += count;
+        }
+        angleCosSin(m, s.armP.data(), s.armQ.data(), ax, ay, az, s.cosine.data(), s.sine.data());
+        Eigen::Map<Eigen::ArrayXd> sines(s.sine.data(), m);
+        sines = sines.sqrt();
+        const double smallest = angleForces(
+            m, s.armP.data(), s.armQ.data(), ax, ay, az, il, s.sine.data(), s.cosine.data(),
+            s.rest.data(), s.fx.data(), s.fy.data(), s.fz.data(), s.fx.data() + second,
+            s.fy.data() + second, s.fz.data() + second);
+        Index k0 = 0;
+        for (Index w = v; w < u; ++w) {
+          const Index d = off[w + 1] - off[w];
+          const Index count = angleOffsets[w + 1] - angleOffsets[w];
+          auto sineOf = [&](Index k) { return s.sine[static_cast<size_t>(k0 + k)]; };
+          auto armsOf = [&](Index k, Index& hp, Index& hq) {
+            hp = s.armP[static_cast<size_t>(k0 + k)] + h0;
+            hq = s.armQ[static_cast<size_t>(k0 + k)] + h0;
+          };
+          if (canonicalAngles_) {
+            const Index* start = armTermStart_.data() + termStart_[static_cast<size_t>(d)];
+            deposit(
+                w, kappaTheta[w],
+                [&](Index a, double* f) {
+                  f[0] = f[1] = f[2] = 0.0;
+                  for (Index t = start[a]; t < start[a + 1]; ++t) {
+                    const size_t at = static_cast<size_t>(k0 + armTerm_[static_cast<size_t>(t)]);
+                    f[0] += s.fx[at];
+                    f[1] += s.fy[at];
+                    f[2] += s.fz[at];
+                  }
+                },
+                !(smallest > 1e-12), sineOf, armsOf);
+          } else {
+            // Any table: sum each angle's two arm forces into its arms, in angle order.
+            std::fill(s.tx.begin(), s.tx.begin() + d, 0.0);
+            std::fill(s.ty.begin(), s.ty.begin() + d, 0.0);
+            std::fill(s.tz.begin(), s.tz.begin() + d, 0.0);
+            const Index b = off[w] - h0;
+            for (Index k = k0; k < k0 + count; ++k) {
+              const size_t at = static_cast<size_t>(k);
+              const size_t i = static_cast<size_t>(s.armP[at] - b);
+              const size_t j = static_cast<size_t>(s.armQ[at] - b);
+              s.tx[i] += s.fx[at];
+              s.ty[i] += s.fy[at];
+              s.tz[i] += s.fz[at];
+              s.tx[j] += s.fx[at + second];
+              s.ty[j] += s.fy[at + second];
+              s.tz[j] += s.fz[at + second];
+            }
+            deposit(
+                w, kappaTheta[w],
+                [&](Index a, double* f) {
+                  f[0] = s.tx[static_cast<size_t>(a)];
+                  f[1] = s.ty[static_cast<size_t>(a)];
+                  f[2] = s.tz[static_cast<size_t>(a)];
+                },
+                !(smallest > 1e-12), sineOf, armsOf);
+          }
+          k0 += count;
+        }
+      }
+      v = u;
+    }
+  }
+  std::copy(acc, acc + 3 * static_cast<size_t>(length), force.data() + 3 * static_cast<size_t>(v0));
+  if (anyAngle)
+    std::copy(acc + 3 * static_cast<size_t>(length),
+              acc + 3 * static_cast<size_t>(length + haloLength),
+              halo_.data() + 3 * static_cast<size_t>(haloBegin));
+  blockHasAngles_[static_cast<size_t>(block)] = anyAngle ? 1 : 0;
+}
+
+void ForceKernel::gatherBlock(Index block, Points& force) const {
+  if (reference_) return;
+  const Index v0 = blockStart_[static_cast<size_t>(block)];
+  double* f = force.data() + 3 * static_cast<size_t>(v0);
+  for (Index k = incomingStart_[static_cast<size_t>(block)];
+       k < incomingStart_[static_cast<size_t>(block) + 1]; ++k) {
+    const size_t q = static_cast<size_t>(k);
+    if (!blockHasAngles_[static_cast<size_t>(incomingBlock_[q])]) continue;
+    double* row = f + 3 * static_cast<size_t>(incomingRow_[q]);
+    const double* h = halo_.data() + 3 * static_cast<size_t>(incomingHalo_[q]);
+    row[0] += h[0];
+    row[1] += h[1];
+    row[2] += h[2];
+  }
 }
 
 }  // namespace zsculpt

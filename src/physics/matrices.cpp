@@ -8,6 +8,10 @@
 
 #include "zsculpt/core/errors.h"
 
+#ifdef _OPENMP
+#include <omp.h>
+#endif
+
 namespace zsculpt {
 
 void multiply(const SparseRowMatrix& a, const Points& in, Points& out) {
@@ -44,18 +48,6 @@ void multiplyRows(const SparseRowMatrix& a, const Points& in, Points& out,
 
 namespace {
 
-// A CSR pattern (sorted columns per row) with zero values.
-SparseRowMatrix patternMatrix(Index n, const std::vector<std::vector<Index>>& columns) {
-  SparseRowMatrix m(n, n);
-  Eigen::VectorXi sizes(n);
-  for (Index i = 0; i < n; ++i) sizes[i] = static_cast<int>(columns[i].size());
-  m.reserve(sizes);
-  for (Index i = 0; i < n; ++i)
-    for (Index j : columns[i]) m.insert(i, j) = 0.0;
-  m.makeCompressed();
-  return m;
-}
-
 // Position of column `col` in row `row` of a compressed matrix, or -1.
 Index findInRow(const SparseRowMatrix& m, Index row, Index col) {
   const Index* begin = m.innerIndexPtr() + m.outerIndexPtr()[row];
@@ -80,20 +72,74 @@ double matrixEdgeStiffness(const Model& model, Index edge) {
   return kappa;
 }
 
+namespace {
+
+int threadCount(Index rows) {
+#ifdef _OPENMP
+  return rows >= 20000 ? omp_get_max_threads() : 1;
+#else
+  (void)rows;
+  return 1;
+#endif
+}
+
+// A compressed N x N matrix with the given row sizes, pattern and values to be filled.
+void allocateCsr(SparseRowMatrix& m, Index n, const std::vector<Index>& outer) {
+  m.resize(n, n);
+  m.resizeNonZeros(outer[static_cast<size_t>(n)]);
+  std::copy(outer.begin(), outer.end(), m.outerIndexPtr());
+}
+
+}  // namespace
+
 SystemMatrices::SystemMatrices(const Model& model) {
+  // Built directly in CSR form, rows in parallel (a row depends on nothing but the model),
+  // with the same arithmetic as computeRow, so a local update still equals a full rebuild
+  // bit for bit.
   const Mesh& mesh = model.mesh;
   const Index n = mesh.numVertices();
-  std::vector<std::vector<Index>> columns(n);
-  for (Index v = 0; v < n; ++v) {
-    columns[v].assign(mesh.vertexNeighbors(v).begin(), mesh.vertexNeighbors(v).end());
-    columns[v].push_back(v);
-    std::sort(columns[v].begin(), columns[v].end());
-  }
-  k_ = patternMatrix(n, columns);
-  omega2_ = k_;
+  const PhysicalProperties& p = model.properties;
+  const Index* off = mesh.vertexNeighborTable().offsets.data();
+  const Index* nbr = mesh.vertexNeighborTable().indices.data();
+  const Index* edges = mesh.vertexEdgeTable().indices.data();
+  std::vector<Index> outer(static_cast<size_t>(n) + 1);
+  for (Index v = 0; v <= n; ++v) outer[static_cast<size_t>(v)] = off[v] + v;
+  allocateCsr(k_, n, outer);
+  allocateCsr(omega2_, n, outer);
   inverseMass_.resize(n);
   g_.resize(n);
-  for (Index v = 0; v < n; ++v) computeRow(model, v);
+  VectorX edgeKappa(mesh.numEdges());
+  const int threads = threadCount(n);
+  (void)threads;
+#pragma omp parallel num_threads(threads) if (threads > 1)
+  {
+#pragma omp for schedule(static)
+    for (Index e = 0; e < mesh.numEdges(); ++e) edgeKappa[e] = matrixEdgeStiffness(model, e);
+    std::vector<std::pair<Index, Index>> row;  // (column, position in the mesh's order)
+#pragma omp for schedule(static)
+    for (Index v = 0; v < n; ++v) {
+      inverseMass_[v] = 1.0 / p.mass[v];
+      g_[v] = 0.5 * p.damping[v] * inverseMass_[v];
+      row.clear();
+      for (Index h = off[v]; h < off[v + 1]; ++h) row.emplace_back(nbr[h], h - off[v]);
+      row.emplace_back(v, -1);
+      std::sort(row.begin(), row.end());
+      const Index begin = outer[static_cast<size_t>(v)];
+      Index* inner = k_.innerIndexPtr() + begin;
+      double* kValues = k_.valuePtr() + begin;
+      double* oValues = omega2_.valuePtr() + begin;
+      double diagonal = 0.0;
+      for (Index h = off[v]; h < off[v + 1]; ++h) diagonal += edgeKappa[edges[h]];
+      for (size_t q = 0; q < row.size(); ++q) {
+        inner[q] = row[q].first;
+        const double value =
+            row[q].second < 0 ? diagonal : -edgeKappa[edges[off[v] + row[q].second]];
+        kValues[q] = value;
+        oValues[q] = value * inverseMass_[v];
+      }
+      std::copy(inner, inner + row.size(), omega2_.innerIndexPtr() + begin);
+    }
+  }
 }
 
 void SystemMatrices::updateVertices(const Model& model, std::span<const Index> vertices) {
@@ -186,19 +232,57 @@ double tightCriticalPeriod(const SystemMatrices& matrices) {
 
 TransformationMatrices::TransformationMatrices(const SystemMatrices& system, double period)
     : period_(period) {
+  // The two-ring pattern of Omega^4, rows in parallel: a stamp per column marks what a row
+  // has already collected.
   const SparseRowMatrix& o2 = system.omega2();
   const Index n = static_cast<Index>(o2.rows());
-  std::vector<std::vector<Index>> columns(n);
-  for (Index i = 0; i < n; ++i) {
-    auto& row = columns[i];
-    for (SparseRowMatrix::InnerIterator a(o2, i); a; ++a)
-      for (SparseRowMatrix::InnerIterator b(o2, a.col()); b; ++b) row.push_back(b.col());
+  const Index* outer2 = o2.outerIndexPtr();
+  const Index* inner2 = o2.innerIndexPtr();
+  std::vector<Index> outer(static_cast<size_t>(n) + 1, 0);
+  const int threads = threadCount(n);
+  (void)threads;
+  auto collect = [&](Index i, std::vector<Index>& stamp, std::vector<Index>& row) {
+    row.clear();
+    for (Index p = outer2[i]; p < outer2[i + 1]; ++p) {
+      const Index a = inner2[p];
+      for (Index q = outer2[a]; q < outer2[a + 1]; ++q) {
+        const Index b = inner2[q];
+        if (stamp[static_cast<size_t>(b)] != i) {
+          stamp[static_cast<size_t>(b)] = i;
+          row.push_back(b);
+        }
+      }
+    }
     std::sort(row.begin(), row.end());
-    row.erase(std::unique(row.begin(), row.end()), row.end());
+  };
+#pragma omp parallel num_threads(threads) if (threads > 1)
+  {
+    std::vector<Index> stamp(static_cast<size_t>(n), -1), row;
+#pragma omp for schedule(static)
+    for (Index i = 0; i < n; ++i) {
+      collect(i, stamp, row);
+      outer[static_cast<size_t>(i) + 1] = static_cast<Index>(row.size());
+    }
+#pragma omp single
+    {
+      for (Index i = 0; i < n; ++i)
+        outer[static_cast<size_t>(i) + 1] += outer[static_cast<size_t>(i)];
+      allocateCsr(omega4_, n, outer);
+    }
+    std::fill(stamp.begin(), stamp.end(), -1);
+#pragma omp for schedule(static)
+    for (Index i = 0; i < n; ++i) {
+      collect(i, stamp, row);
+      std::copy(row.begin(), row.end(), omega4_.innerIndexPtr() + outer[static_cast<size_t>(i)]);
+    }
   }
-  omega4_ = patternMatrix(n, columns);
   h_ = hPrime_ = hSecond_ = x_ = xPrime_ = omega4_;
-  for (Index i = 0; i < n; ++i) computeRow(system, i);
+#pragma omp parallel num_threads(threads) if (threads > 1)
+  {
+    std::vector<Index> position(static_cast<size_t>(n), -1);
+#pragma omp for schedule(static)
+    for (Index i = 0; i < n; ++i) computeRow(system, i, position.data());
+  }
 }
 
 void TransformationMatrices::updateVertices(const SystemMatrices& system,
@@ -210,18 +294,22 @@ void TransformationMatrices::updateVertices(const SystemMatrices& system,
     for (SparseRowMatrix::InnerIterator it(o2, v); it; ++it) rows.push_back(it.col());
   std::sort(rows.begin(), rows.end());
   rows.erase(std::unique(rows.begin(), rows.end()), rows.end());
-  for (Index i : rows) computeRow(system, i);
+  for (Index i : rows) computeRow(system, i, nullptr);
 }
 
-void TransformationMatrices::computeRow(const SystemMatrices& system, Index i) {
+void TransformationMatrices::computeRow(const SystemMatrices& system, Index i, Index* position) {
   const SparseRowMatrix& o2 = system.omega2();
   const Index begin = omega4_.outerIndexPtr()[i];
   const Index end = omega4_.outerIndexPtr()[i + 1];
   double* o4 = omega4_.valuePtr();
   std::fill(o4 + begin, o4 + end, 0.0);
+  // Omega^4_i. = sum_a Omega^2_ia Omega^2_a., summed in this loop order whether the column's
+  // place is found by a lookup table (full build) or a search (local update): same bits.
+  if (position)
+    for (Index p = begin; p < end; ++p) position[omega4_.innerIndexPtr()[p]] = p;
   for (SparseRowMatrix::InnerIterator a(o2, i); a; ++a)
     for (SparseRowMatrix::InnerIterator b(o2, a.col()); b; ++b)
-      o4[findInRow(omega4_, i, b.col())] += a.value() * b.value();
+      o4[position ? position[b.col()] : findInRow(omega4_, i, b.col())] += a.value() * b.value();
 
   const double t = period_, t2 = t * t, t3 = t2 * t, t4 = t2 * t2, t5 = t4 * t, t6 = t4 * t2;
   const double g = system.dampingCoefficient()[i];

@@ -1,5 +1,7 @@
 #include "zsculpt/simulation/simulation.h"
 
+#include <algorithm>
+#include <cmath>
 #include <string>
 
 #include "zsculpt/core/errors.h"
@@ -7,17 +9,78 @@
 namespace zsculpt {
 
 Simulation::Simulation(Model model, const SimulationSettings& settings)
-    : model_(std::move(model)) {
+    : model_(std::move(model)), settings_(settings) {
   model_.properties.validate(model_.mesh, model_.angles);
+  if (settings_.constraintSteps < 1)
+    throw InvalidInputError("constraint steps " + std::to_string(settings_.constraintSteps) +
+                            " must be at least 1");
   state_ = State::atRest(model_.mesh);
   lastGood_ = state_;
   stepper_ = std::make_unique<Stepper>(model_, settings.scheme, settings.period, settings.stepper);
-  external_.setZero(model_.mesh.numVertices(), 3);
+  const Index n = model_.mesh.numVertices();
+  for (Points* p : {&external_, &constraintForce_, &baseForce_, &totalForce_, &loadForce_,
+                    &deformation_, &lastGoodDeformation_})
+    p->setZero(n, 3);
   Index maxValence = 0;
-  for (Index v = 0; v < model_.mesh.numVertices(); ++v)
-    maxValence = std::max(maxValence, model_.mesh.valence(v));
+  for (Index v = 0; v < n; ++v) maxValence = std::max(maxValence, model_.mesh.valence(v));
   armBuffer_.resize(static_cast<size_t>(maxValence));
   forceBuffer_.resize(static_cast<size_t>(maxValence));
+  trial_ = state_;
+  elasticStart_ = state_;
+  scale_ = std::max(1.0, model_.mesh.boundingBox().diagonal());
+  updateRigidity();
+  if (rigidActive_) splitVelocity();
+}
+
+// ---- state and properties -------------------------------------------------------------------
+
+void Simulation::updateRigidity() {
+  const PhysicalProperties& p = model_.properties;
+  const Index n = model_.mesh.numVertices();
+  chi_.resize(static_cast<size_t>(n));
+  sigma_.resize(static_cast<size_t>(n));
+  rigidActive_ = false;
+  allRigid_ = n > 0;
+  for (Index i = 0; i < n; ++i) {
+    // Section 4.3: chi_i = 1 - sigma_i, sigma_i = min(kappa_0 / kappa_i, 1), or the painted
+    // rigidity where it is larger; the force splits into sigma_i F_i and chi_i F_i.
+    const double painted = p.rigidity[i];
+    const double automatic = zsculpt::elasticShare(p.stiffness[i], p.stiffnessCap);
+    const double sigma = std::min(1.0 - painted, automatic);
+    chi_[static_cast<size_t>(i)] = effectiveRigidity(painted, p.stiffness[i], p.stiffnessCap);
+    sigma_[static_cast<size_t>(i)] = sigma;
+    rigidActive_ = rigidActive_ || sigma < 1.0;
+    allRigid_ = allRigid_ && sigma == 0.0;
+  }
+  const double mass = p.mass.sum();
+  // Damping of the rigid motion: the mass-weighted mean of rho_i / (2 mu_i), exact when
+  // damping is proportional to mass (as the exact scheme requires anyway).
+  rigidDamping_ = mass > 0.0 ? 0.5 * p.damping.sum() / mass : 0.0;
+  responseValid_ = false;
+  baseForceValid_ = false;
+}
+
+void Simulation::splitVelocity() {
+  // Tisserand split: the rigid body takes the momentum and angular momentum, the elastic
+  // part keeps the rest. A fully rigid vertex (sigma = 0) has no elastic degree of freedom:
+  // its leftover velocity would drift forever, unresisted, so it is dropped.
+  const VectorX& mass = model_.properties.mass;
+  start_ = massProperties(mass, state_.position);
+  deformation_ = state_.velocity;
+  rigidMomentum_ = removeRigidMotion(mass, start_, state_.position, deformation_);
+  bool dropped = false;
+  for (Index i = 0; i < deformation_.rows(); ++i)
+    if (sigma_[static_cast<size_t>(i)] == 0.0 && !deformation_.row(i).isZero(0.0)) {
+      deformation_.row(i).setZero();
+      dropped = true;
+    }
+  if (dropped) {
+    const RigidMomentum more = removeRigidMotion(mass, start_, state_.position, deformation_);
+    rigidMomentum_.linear += more.linear;
+    rigidMomentum_.angular += more.angular;
+  }
+  state_.velocity = deformation_;
+  addRigidVelocity(start_, rigidMomentum_, state_.position, state_.velocity);
 }
 
 void Simulation::setState(const State& state) {
@@ -29,9 +92,42 @@ void Simulation::setState(const State& state) {
   if (!state.position.allFinite() || !state.velocity.allFinite())
     throw InvalidInputError("state contains a non-finite value");
   state_ = state;
-  lastGood_ = state;
+  if (rigidActive_) splitVelocity();
+  else rigidMomentum_ = RigidMomentum{};
+  lastGood_ = state_;
+  baseForceValid_ = false;
+  ledger_ = ImpulseLedger{};
   stepper_->invalidate();
 }
+
+void Simulation::propertiesChanged(std::span<const Index> vertices) {
+  const PhysicalProperties& p = model_.properties;
+  const Index n = model_.mesh.numVertices();
+  for (Index v : vertices) {
+    if (v < 0 || v >= n)
+      throw InvalidInputError("property edit at vertex " + std::to_string(v) +
+                              ": no such vertex (the model has " + std::to_string(n) + ")");
+    for (Property property : {Property::Mass, Property::Damping, Property::Stiffness,
+                              Property::AngularStiffness, Property::Rigidity})
+      checkPropertyValue(property, p.vertexValues(property)[v], "vertex " + std::to_string(v));
+  }
+  stepper_->propertiesChanged(vertices);
+  const bool wasActive = rigidActive_;
+  updateRigidity();
+  if (rigidActive_) splitVelocity();
+  else if (wasActive) rigidMomentum_ = RigidMomentum{};  // state_.velocity is already total
+}
+
+void Simulation::allPropertiesChanged() {
+  model_.properties.validate(model_.mesh, model_.angles);
+  stepper_->rebuild();
+  const bool wasActive = rigidActive_;
+  updateRigidity();
+  if (rigidActive_) splitVelocity();
+  else if (wasActive) rigidMomentum_ = RigidMomentum{};
+}
+
+// ---- loads ----------------------------------------------------------------------------------
 
 namespace {
 
@@ -64,45 +160,377 @@ void Simulation::clearLoads() {
   torques_.clear();
 }
 
-void Simulation::gatherLoads(double t) {
-  external_.setZero();
+void Simulation::gatherLoads(double t, const Points& position, Points& out) {
+  out.setZero();
   for (const TimedLoad& f : forces_)
-    if (f.activeAt(t)) external_.row(f.vertex) += f.value.transpose();
+    if (f.activeAt(t)) out.row(f.vertex) += f.value.transpose();
   const Mesh& mesh = model_.mesh;
   for (const TimedLoad& torque : torques_) {
     if (!torque.activeAt(t)) continue;
     // Section 5.3: a torque becomes virtual forces on the neighbours.
     const auto neighbours = mesh.vertexNeighbors(torque.vertex);
     const size_t k = neighbours.size();
-    for (size_t q = 0; q < k; ++q) armBuffer_[q] = state_.position.row(neighbours[q]).transpose();
+    for (size_t q = 0; q < k; ++q) armBuffer_[q] = position.row(neighbours[q]).transpose();
     Vec3 onCentre;
-    torqueToForces(state_.position.row(torque.vertex).transpose(),
+    torqueToForces(position.row(torque.vertex).transpose(),
                    std::span<const Vec3>(armBuffer_.data(), k), torque.value,
                    std::span<Vec3>(forceBuffer_.data(), k), onCentre);
-    external_.row(torque.vertex) += onCentre.transpose();
-    for (size_t q = 0; q < k; ++q) external_.row(neighbours[q]) += forceBuffer_[q].transpose();
+    out.row(torque.vertex) += onCentre.transpose();
+    for (size_t q = 0; q < k; ++q) out.row(neighbours[q]) += forceBuffer_[q].transpose();
   }
 }
 
+// ---- constraints ----------------------------------------------------------------------------
+
+Index Simulation::addPositionConstraint(Index vertex, std::optional<Vec3> target) {
+  const bool exists = vertex >= 0 && vertex < model_.mesh.numVertices();
+  const Vec3 where = target ? *target
+                     : exists ? Vec3(state_.position.row(vertex).transpose())
+                              : Vec3::Zero();
+  return constraints_.addPosition(model_.mesh, vertex, where);
+}
+
+Index Simulation::addNormalConstraint(Index vertex, std::optional<Vec3> normal) {
+  // Without a normal: the current one (addNormal reports where there is none).
+  const Vec3 direction =
+      normal ? *normal : bestPlaneNormal(model_.mesh, state_.position, vertex).value_or(Vec3::UnitZ());
+  return constraints_.addNormal(model_.mesh, state_.position, vertex, direction);
+}
+
+void Simulation::setConstraintTarget(Index id, const Vec3& target) {
+  constraints_.setTarget(id, target);
+}
+
+void Simulation::setConstraintNormal(Index id, const Vec3& normal) {
+  constraints_.setNormal(id, normal);
+}
+
+void Simulation::removeConstraint(Index id) { constraints_.remove(id); }
+
+void Simulation::clearConstraints() {
+  constraints_.clear();
+  constraintForce_.setZero();
+}
+
+std::vector<std::string> Simulation::takeWarnings() {
+  std::vector<std::string> out = constraints_.takeWarnings();
+  out.insert(out.end(), warnings_.begin(), warnings_.end());
+  warnings_.clear();
+  return out;
+}
+
+// ---- the cycle ------------------------------------------------------------------------------
+
 void Simulation::step() {
-  gatherLoads(state_.time);
+  gatherLoads(state_.time, state_.position, external_);
   lastGood_.position = state_.position;
   lastGood_.velocity = state_.velocity;
   lastGood_.time = state_.time;
-  stepper_->step(state_, external_);
-  if (!state_.position.allFinite() || !state_.velocity.allFinite()) {
-    const double t = state_.time;
-    state_ = lastGood_;
+  if (rigidActive_) {
+    lastGoodMomentum_ = rigidMomentum_;
+    lastGoodDeformation_ = deformation_;
+  }
+  const ImpulseLedger ledgerBefore = ledger_;
+  auto restore = [&]() {
+    state_.position = lastGood_.position;
+    state_.velocity = lastGood_.velocity;
+    state_.time = lastGood_.time;
+    if (rigidActive_) {
+      rigidMomentum_ = lastGoodMomentum_;
+      deformation_ = lastGoodDeformation_;
+    }
+    ledger_ = ledgerBefore;
+    baseForceValid_ = false;
     stepper_->invalidate();
+  };
+  try {
+    if (!rigidActive_ && constraints_.empty()) {
+      // The plain elastic cycle: nothing is split, nothing is constrained.
+      stepper_->step(state_, external_);
+      constraintForce_.setZero();
+      baseForceValid_ = false;
+      addToLedger(Vec3::Zero(), velocityDelta_);
+    } else {
+      coupledStep();
+    }
+  } catch (const DivergenceError&) {
+    restore();
+    throw;
+  }
+  if (!state_.position.allFinite() || !state_.velocity.allFinite() ||
+      !rigidMomentum_.linear.allFinite() || !rigidMomentum_.angular.allFinite()) {
+    const double t = state_.time;
+    restore();
     throw DivergenceError("the simulation diverged at t = " + std::to_string(t) +
                           " s (the state became non-finite)");
   }
 }
 
-void Simulation::propertiesChanged(std::span<const Index> vertices) {
-  stepper_->propertiesChanged(vertices);
+void Simulation::computeBaseForce(const Points& position) {
+  baseForce_.setZero();
+  // The internal forces of a fully rigid model add up to no force and no torque: skip them
+  // (their rounding would only stir the rigid body).
+  if (!allRigid_) accumulateInternalForces(model_, position, baseForce_);
+  accumulateGravity(model_.properties, position, baseForce_);
+  baseForceValid_ = true;
 }
 
-void Simulation::allPropertiesChanged() { stepper_->rebuild(); }
+void Simulation::runTrial(bool constrained, bool first) {
+  const double t = period();
+  trial_.position = elasticStart_.position;
+  trial_.velocity = elasticStart_.velocity;
+  trial_.time = elasticStart_.time;
+  const Points* load = &external_;
+  if (constrained) {
+    loadForce_ = external_ + constraintForce_;
+    load = &loadForce_;
+  }
+  if (allRigid_) {
+    // sigma = 0 everywhere: the elastic stepper would receive no force at all.
+    trial_.position += t * trial_.velocity;
+    trial_.time += t;
+  } else {
+    // The stepper caches internal forces at its last end positions; they are stale after
+    // the rigid motion moved the vertices or after an earlier trial of this cycle.
+    if (rigidActive_ || !first) stepper_->invalidate();
+    if (rigidActive_)
+      stepper_->step(trial_, *load, sigma_);
+    else
+      stepper_->step(trial_, *load);
+  }
+  const auto support = solver_.support();
+  if (!rigidActive_) {
+    if (constrained)
+      for (size_t a = 0; a < support.size(); ++a)
+        supportElastic_.row(static_cast<Index>(a)) = trial_.position.row(support[a]);
+    return;
+  }
+  const VectorX& mass = model_.properties.mass;
+  Vec3 weighted = Vec3::Zero();
+  for (Index i = 0; i < trial_.position.rows(); ++i)
+    weighted += mass[i] * trial_.position.row(i).transpose();
+  elasticCentre_ = weighted / start_.mass;
+  Vec3 force = startRigidForce_, torque = startRigidTorque_;
+  if (constrained) {
+    // The same sums, in the same order, as StepResponse::rigidMotion, so the response
+    // model reproduces this step exactly at its anchor.
+    const Points& virtualForce = solver_.forces();
+    for (size_t a = 0; a < support.size(); ++a) {
+      const Index l = static_cast<Index>(a);
+      supportElastic_.row(l) = trial_.position.row(support[a]);
+      const Vec3 share = supportChi_[a] * virtualForce.row(l).transpose();
+      force += share;
+      torque += (supportStart_.row(l).transpose() - start_.centre).cross(share);
+    }
+  }
+  drift_ = rigidDrift(start_, rigidMomentum_, force, torque, t, rigidDamping_);
+  applyRigidMotion(elasticCentre_, drift_.translation, drift_.rotation, trial_.position);
+}
+
+void Simulation::finishRigid() {
+  const double t = period();
+  const VectorX& mass = model_.properties.mass;
+  end_ = massProperties(mass, trial_.position);
+  // Second half kick with the forces at the end of the drift (velocity Verlet); they are
+  // also the next cycle's start forces.
+  computeBaseForce(trial_.position);
+  // Point forces are held over the cycle; a torque load stays the same torque, so its
+  // virtual forces are laid out again on the moved vertices.
+  if (torques_.empty()) {
+    totalForce_ = baseForce_ + external_;
+  } else {
+    gatherLoads(elasticStart_.time, trial_.position, loadForce_);
+    totalForce_ = baseForce_ + loadForce_;
+  }
+  if (!constraints_.empty()) totalForce_ += constraintForce_;
+  Vec3 force, torque;
+  weightedResultant(chi_, trial_.position, totalForce_, end_.centre, force, torque);
+  rigidMomentum_ = rigidKick(drift_.half, force, torque, t, rigidDamping_);
+  deformation_ = trial_.velocity;
+  if (allRigid_) {
+    deformation_.setZero();
+  } else {
+    // The deformation started the cycle with no net momentum and no angular momentum; hand
+    // what it gained to the rigid body. Its momentum gain is the elastic share of the
+    // forces' impulse (every scheme keeps linear momentum exactly), taken before the
+    // deformation is turned with the body. Its angular momentum gain is replaced by the
+    // impulse of the elastic share's torque (trapezoidal, like the kicks): the elastic
+    // schemes do not keep angular momentum exactly, and this way internal forces, whose
+    // torque vanishes, leave L exactly unchanged.
+    Vec3 gained = Vec3::Zero();
+    for (Index i = 0; i < deformation_.rows(); ++i)
+      gained += mass[i] * deformation_.row(i).transpose();
+    const Eigen::RowVector3d mean = (gained / end_.mass).transpose();
+    for (Index i = 0; i < deformation_.rows(); ++i) deformation_.row(i) -= mean;
+    if (settings_.rigidFrame == RigidFrame::Body)
+      for (Index i = 0; i < deformation_.rows(); ++i)
+        deformation_.row(i) = (drift_.rotation * deformation_.row(i).transpose()).transpose();
+    RigidMomentum moved = removeRigidMotion(mass, end_, trial_.position, deformation_);
+    moved.linear += gained;
+    Vec3 unused, endTorque;
+    weightedResultant(sigma_, trial_.position, totalForce_, end_.centre, unused, endTorque);
+    Vec3 startTorque = startElasticTorque_;
+    if (!constraints_.empty()) {
+      const auto support = solver_.support();
+      for (size_t a = 0; a < support.size(); ++a) {
+        const Index v = support[a];
+        startTorque += (elasticStart_.position.row(v).transpose() - start_.centre)
+                           .cross(sigma_[static_cast<size_t>(v)] * constraintForce_.row(v).transpose());
+      }
+    }
+    rigidMomentum_.linear += moved.linear;
+    rigidMomentum_.angular += (0.5 * t) * (startTorque + endTorque);
+  }
+  state_.position = trial_.position;
+  state_.velocity = deformation_;
+  addRigidVelocity(end_, rigidMomentum_, state_.position, state_.velocity);
+}
+
+void Simulation::coupledStep() {
+  const double t = period();
+  const VectorX& mass = model_.properties.mass;
+  const bool constrained = !constraints_.empty();
+  if (constrained && constraints_.revision() != constraintRevision_) {
+    solver_.setUp(model_.mesh, constraints_);
+    constraintRevision_ = constraints_.revision();
+    responseValid_ = false;
+    const Index s = static_cast<Index>(solver_.support().size());
+    supportStart_.setZero(s, 3);
+    supportElastic_.setZero(s, 3);
+    velocityDelta_.setZero(s, 3);
+    supportChi_.assign(static_cast<size_t>(s), 0.0);
+    warnedUnmet_ = false;
+  }
+  if (constrained && !responseValid_) {
+    response_.buildElastic(*stepper_, model_,
+                           rigidActive_ ? std::span<const double>(sigma_) : std::span<const double>(),
+                           solver_.support());
+    responseValid_ = true;
+  }
+
+  elasticStart_.position = state_.position;
+  elasticStart_.velocity = rigidActive_ ? deformation_ : state_.velocity;
+  elasticStart_.time = state_.time;
+  if (rigidActive_) {
+    start_ = massProperties(mass, state_.position);
+    if (!baseForceValid_) computeBaseForce(state_.position);
+    totalForce_ = baseForce_ + external_;
+    weightedResultant(chi_, state_.position, totalForce_, start_.centre, startRigidForce_,
+                      startRigidTorque_);
+    Vec3 unused;
+    weightedResultant(sigma_, state_.position, totalForce_, start_.centre, unused,
+                      startElasticTorque_);
+  }
+  constraintForce_.setZero();
+  report_ = ConstraintReport{};
+  if (constrained) {
+    const auto support = solver_.support();
+    solver_.beginStep(model_.mesh, constraints_, state_.position, mass);
+    for (size_t a = 0; a < support.size(); ++a) {
+      supportStart_.row(static_cast<Index>(a)) = state_.position.row(support[a]);
+      supportChi_[a] = chi_[static_cast<size_t>(support[a])];
+    }
+    if (rigidActive_) {
+      StepResponse::Rigid rigid;
+      rigid.start = start_;
+      rigid.momentum = rigidMomentum_;
+      rigid.force = startRigidForce_;
+      rigid.torque = startRigidTorque_;
+      rigid.damping = rigidDamping_;
+      rigid.period = t;
+      response_.setRigid(rigid, supportStart_, supportChi_);
+    } else {
+      response_.clearRigid();
+    }
+    const double positionTolerance = settings_.positionTolerance * scale_;
+    for (int k = 0;; ++k) {
+      const Points& virtualForce = solver_.forces();
+      for (size_t a = 0; a < support.size(); ++a)
+        constraintForce_.row(support[a]) = virtualForce.row(static_cast<Index>(a));
+      runTrial(true, k == 0);
+      report_.steps = k + 1;
+      if (solver_.check(constraints_, trial_.position, positionTolerance,
+                        settings_.normalTolerance, report_))
+        break;
+      if (k + 1 >= settings_.constraintSteps) break;
+      response_.anchor(supportElastic_, elasticCentre_, solver_.forces());
+      solver_.solve(constraints_, response_, positionTolerance, settings_.normalTolerance);
+    }
+    if (!report_.converged && !warnedUnmet_) {
+      warnings_.push_back("constraints not met at t = " + std::to_string(state_.time) +
+                          " s (position error " + std::to_string(report_.positionError) +
+                          ", normal error " + std::to_string(report_.normalError) +
+                          " rad): they contradict each other or the rigid body");
+      warnedUnmet_ = true;
+    }
+  } else {
+    runTrial(false, true);
+  }
+
+  const Vec3 centre = rigidActive_ ? start_.centre : Vec3::Zero();
+  if (rigidActive_) {
+    finishRigid();
+  } else {
+    state_.position = trial_.position;
+    state_.velocity = trial_.velocity;
+    baseForceValid_ = false;
+  }
+  state_.time = trial_.time;
+  if (constrained) {
+    solver_.velocityCorrection(constraints_, elasticStart_.position, state_.position,
+                               state_.velocity, mass,
+                               rigidActive_ ? std::span<const double>(sigma_) : std::span<const double>(),
+                               t, velocityDelta_);
+    const auto support = solver_.support();
+    for (size_t a = 0; a < support.size(); ++a) {
+      const Index v = support[a];
+      state_.velocity.row(v) += velocityDelta_.row(static_cast<Index>(a));
+      if (rigidActive_) deformation_.row(v) += velocityDelta_.row(static_cast<Index>(a));
+    }
+    if (rigidActive_ && !allRigid_) {
+      // The corrections' momentum and angular momentum go to the rigid body at once, so
+      // the deformation starts every cycle with none (the vertex velocities are unchanged).
+      const RigidMomentum moved = removeRigidMotion(mass, end_, state_.position, deformation_);
+      rigidMomentum_.linear += moved.linear;
+      rigidMomentum_.angular += moved.angular;
+    }
+  }
+  addToLedger(centre, velocityDelta_);
+}
+
+void Simulation::addToLedger(const Vec3& centreHint, const Points& velocityDelta) {
+  const double t = period();
+  const VectorX& mass = model_.properties.mass;
+  const Points& start = lastGood_.position;
+  Vec3 centre = centreHint;
+  if (!rigidActive_) {
+    Vec3 weighted = Vec3::Zero();
+    for (Index i = 0; i < start.rows(); ++i) weighted += mass[i] * start.row(i).transpose();
+    centre = weighted / mass.sum();
+  }
+  for (Index i = 0; i < start.rows(); ++i) {
+    const Vec3 arm = start.row(i).transpose() - centre;
+    const Vec3 load = external_.row(i).transpose();
+    if (!load.isZero(0.0)) {
+      ledger_.loads += t * load;
+      ledger_.loadsAngular += t * arm.cross(load);
+    }
+  }
+  ledger_.gravity += t * mass.sum() * model_.properties.gravity;
+  if (constraints_.empty()) return;
+  const auto support = solver_.support();
+  Vec3 endCentre = Vec3::Zero();
+  for (Index i = 0; i < state_.position.rows(); ++i)
+    endCentre += mass[i] * state_.position.row(i).transpose();
+  endCentre /= mass.sum();
+  for (size_t a = 0; a < support.size(); ++a) {
+    const Index v = support[a];
+    const Vec3 f = constraintForce_.row(v).transpose();
+    const Vec3 kick = mass[v] * velocityDelta.row(static_cast<Index>(a)).transpose();
+    ledger_.constraints += t * f + kick;
+    ledger_.constraintsAngular += t * (Vec3(start.row(v).transpose()) - centre).cross(f) +
+                                  (Vec3(state_.position.row(v).transpose()) - endCentre).cross(kick);
+  }
+}
 
 }  // namespace zsculpt

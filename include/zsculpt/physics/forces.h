@@ -5,7 +5,9 @@
 // Every internal force here is minus the gradient of an energy, so net force and net
 // torque of internal forces vanish exactly (up to rounding) and energy is well defined.
 
+#include <cstdint>
 #include <span>
+#include <vector>
 
 #include "zsculpt/core/types.h"
 #include "zsculpt/physics/properties.h"
@@ -62,5 +64,99 @@ double accumulateGravity(const PhysicalProperties& properties, const Points& pos
 
 /// Potential energy only (no forces).
 PotentialEnergy potentialEnergy(const Model& model, const Points& position);
+
+/// The internal forces of a whole model as the steppers evaluate them every step: the same
+/// springs and formulas as accumulateInternalForces (which stays the plain serial
+/// reference), organised for speed and for threads (docs/performance.md).
+///
+/// The vertices are cut into blocks of consecutive indices; the cut depends on the vertex
+/// count only. Each block computes the radial forces on its own vertices (a gather: every
+/// edge is evaluated from both ends, so nothing is written outside the block) and every
+/// angle spring centred in it once, adding the forces on its own vertices in place and
+/// those on vertices of other blocks to a per-block halo buffer. A second pass adds the
+/// halo buffers to their vertices in block order. Every sum therefore runs in an order
+/// fixed by the model, not by the threads: the result is bit-identical whatever the
+/// thread count (recorded sessions replay bit for bit). The angle springs, most of the
+/// work, are evaluated in batches that the compiler vectorises (arm unit vectors shared by
+/// the angles of a vertex, a branch-free atan2).
+///
+/// Cached from the properties: the radial stiffness kappa_ij of every edge. Call
+/// propertiesChanged() (or rebuild()) after an edit; rest lengths, rest angles and angular
+/// stiffness are read from the model at every evaluation and need nothing.
+///
+/// The two phases can run inside a caller's OpenMP parallel region (orphaned worksharing;
+/// scatter() ends with a barrier), so that a stepper fuses its per-vertex work with
+/// gatherBlock(); outside a parallel region they run on the calling thread.
+class ForceKernel {
+ public:
+  ForceKernel() = default;
+  /// O(edges + angles); allocates the per-thread work space for `maxThreads` threads
+  /// (0: the OpenMP maximum).
+  explicit ForceKernel(const Model& model, int maxThreads = 0);
+
+  /// The properties of these vertices (or of their edges and angles) changed.
+  void propertiesChanged(const Model& model, std::span<const Index> vertices);
+  /// Every property may have changed.
+  void rebuild(const Model& model);
+
+  /// force = the internal forces at `position` (every row overwritten). Uses up to
+  /// `threads` threads (0: maxThreads), or the current team inside a parallel region.
+  void compute(const Model& model, const Points& position, Points& force, int threads = 0);
+
+  /// Phase 1 (worksharing over blocks, ends with a barrier): every block's own rows of
+  /// `force` and its halo buffer.
+  void scatter(const Model& model, const Points& position, Points& force);
+  /// Phase 2 for one block: adds the halo contributions of other blocks to its rows.
+  void gatherBlock(Index block, Points& force) const;
+
+  [[nodiscard]] Index numBlocks() const { return static_cast<Index>(blockStart_.size()) - 1; }
+  [[nodiscard]] Index blockBegin(Index block) const { return blockStart_[block]; }
+  [[nodiscard]] Index blockEnd(Index block) const { return blockStart_[block + 1]; }
+  [[nodiscard]] int maxThreads() const { return static_cast<int>(scratch_.size()); }
+  /// Bytes held (caches, plan and work space), for the memory report.
+  [[nodiscard]] size_t bytes() const;
+
+ private:
+  /// One thread's work space for one chunk of vertices (structure of arrays).
+  struct Scratch {
+    std::vector<double> acc;  // block accumulator, 3 per row (own rows, then halo)
+    // Per half-edge (v, w) of a chunk: arm r_w - r_v (then its unit vector), length, inverse
+    // length, radial force on v (then per-arm sums of angle forces); arms transposed by
+    // slot for a run of equal-degree vertices.
+    std::vector<double> ax, ay, az, length, invLength, gx, gy, gz, tx, ty, tz, tl;
+    // Per angle of a chunk: arms (chunk half-edges), rest angle, cosine, sine, forces on
+    // the two arm ends without kappa_theta (first arm's at k, second arm's at k + maxAngles).
+    std::vector<Index> armP, armQ;
+    std::vector<double> rest, cosine, sine, fx, fy, fz;
+  };
+  void scatterBlock(const Model& model, const Points& position, Points& force, Index block,
+                    Scratch& scratch);
+
+  std::vector<Index> blockStart_{0};
+  /// Per half-edge (the CSR of Mesh::vertexNeighborTable): where a force on the vertex
+  /// across it goes in its block's accumulator (own rows first, then the halo).
+  std::vector<Index> target_;
+  std::vector<Index> haloStart_{0};
+  /// Per block, what other blocks left for its vertices: (local row, halo position, source
+  /// block), sorted by row then source block.
+  std::vector<Index> incomingStart_{0};
+  std::vector<Index> incomingRow_, incomingHalo_, incomingBlock_;
+  std::vector<double> halo_;
+  std::vector<std::uint8_t> blockHasAngles_;
+  VectorX edgeKappa_;
+  /// The angle table lists every vertex's angles as the pairs (p < q) of its neighbours in
+  /// neighbour order (buildAngleTable's layout): arms are found without a lookup.
+  bool canonicalAngles_ = true;
+  std::vector<Index> angleArm_;  // 2 per angle (half-edges), when not canonical
+  /// Canonical layout, per vertex degree k: the pairs (a, b) of arms in angle order, and for
+  /// every arm its terms (angle number, plus maxAngles_ for the angle's second arm) in angle
+  /// order. Offsets per degree in pairStart_ / termStart_ (arm terms: CSR by degree then arm).
+  std::vector<Index> pairStart_, pairA_, pairB_, termStart_, armTermStart_, armTerm_;
+  Index maxAngles_ = 0;
+  /// Angle arms that are not edges of the centre: use the serial reference instead.
+  bool reference_ = false;
+  Index chunkVertices_ = 64;
+  std::vector<Scratch> scratch_;
+};
 
 }  // namespace zsculpt

@@ -96,7 +96,8 @@ class TransformationMatrices {
   [[nodiscard]] const SparseRowMatrix& xPrime() const { return xPrime_; }
 
  private:
-  void computeRow(const SystemMatrices& system, Index row);
+  // `position` (optional, N entries): scratch for the column -> entry lookup of a full build.
+  void computeRow(const SystemMatrices& system, Index row, Index* position);
 
   double period_ = 0.0;
   SparseRowMatrix omega4_, h_, hPrime_, hSecond_, x_, xPrime_;

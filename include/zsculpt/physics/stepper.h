@@ -20,9 +20,16 @@
 //
 // External forces are held constant over a step (zero-order hold, as the z-transform of
 // sampled forces assumes). No allocation per step.
+//
+// Speed (docs/performance.md): the internal forces come from ForceKernel; every scheme's
+// step is a few passes over blocks of vertices inside one OpenMP parallel region, each
+// pass fusing what it can (the default scheme: kick and drift; forces; acceleration;
+// filter product, kick and damping). Every value is computed by one thread in an order
+// fixed by the model, so a state is bit-identical whatever the thread count.
 
 #include <Eigen/Dense>
 #include <Eigen/SparseCholesky>
+#include <cstdint>
 #include <memory>
 #include <span>
 #include <string_view>
@@ -50,7 +57,16 @@ struct StepperOptions {
   bool storedMatrices = false;
   /// Exact scheme: refuse models larger than this (dense eigendecomposition).
   Index exactMaxVertices = 4000;
+  /// Threads for the step: 0 picks all of OpenMP's (OMP_NUM_THREADS) for models of
+  /// kParallelMinVertices or more and one thread below (where waking a second thread costs
+  /// more than it saves). The result does not depend on it.
+  int threads = 0;
 };
+
+/// Below this many vertices the automatic thread count is one.
+inline constexpr Index kParallelMinVertices = 8000;
+/// The automatic thread count for a model of this many vertices (StepperOptions::threads 0).
+int automaticThreads(Index vertices);
 
 class Stepper {
  public:
@@ -82,11 +98,21 @@ class Stepper {
     return transformation_.get();
   }
   /// Total force (internal + external + gravity) at the start of the last step.
-  [[nodiscard]] const Points& lastTotalForce() const { return totalForce_; }
+  [[nodiscard]] const Points& lastTotalForce() const;
+  /// Threads the step uses.
+  [[nodiscard]] int threads() const { return threads_; }
+  /// Bytes held by the stepper (matrices, caches, work buffers), for the memory report.
+  [[nodiscard]] size_t bytes() const;
 
  private:
+  // Inside the step's parallel region: acceleration (and total force) rows of one block from
+  // `internal`, the external forces, gravity and the elastic share; returns whether the
+  // block's external forces are all zero.
+  bool accelerationRows(Index block, const Points& internal, const Points& external,
+                        std::span<const double> share, bool writeTotal);
   void computeAcceleration(const Points& position, const Points& external,
-                           std::span<const double> elasticShare, bool reuseInternal);
+                           std::span<const double> elasticShare);
+  void refreshDamping(std::span<const Index> vertices);
   void stepDefault(State& s, const Points& external, std::span<const double> share);
   void stepPaper(State& s, const Points& external, std::span<const double> share);
   void stepExact(State& s, const Points& external, std::span<const double> share);
@@ -98,12 +124,26 @@ class Stepper {
   Scheme scheme_;
   double period_;
   StepperOptions options_;
+  int threads_ = 1;
   SystemMatrices system_;
   std::unique_ptr<TransformationMatrices> transformation_;
+  ForceKernel forces_;
 
-  // Work buffers (N x 3), allocated once.
-  Points internal_, totalForce_, acceleration_, work1_, work2_, work3_, work4_;
+  // Work buffers (N x 3), allocated once. internal_ holds the internal forces at the current
+  // position when cacheValid_; previousInternal_ those at the start of the last step.
+  Points internal_, previousInternal_, acceleration_, kick_, work1_, work2_, work3_, work4_;
   bool cacheValid_ = false;
+  // Default scheme: kick_ = (T/2) Phi a of the last step's end, valid for the next step's
+  // start while the external forces stay zero and no elastic share is given.
+  bool kickValid_ = false;
+  // Per vertex: exp(-g T) (half a step of damping, default scheme) and exp(-2 g T).
+  VectorX dampHalf_, dampFull_;
+  // Per block: are the external forces of its rows zero.
+  std::vector<std::uint8_t> externalZero_;
+  // lastTotalForce(): written by the step, or made on demand from previousInternal_ and
+  // gravity when the last step had no external force.
+  mutable Points totalForce_;
+  mutable bool totalForceReady_ = true;
 
   // Exact scheme: Omega^2's symmetric form = Q diag(w^2) Q^T; per-mode 2 x 3 propagators.
   Eigen::MatrixXd modes_;

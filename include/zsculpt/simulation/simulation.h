@@ -1,14 +1,31 @@
 #pragma once
 // The solver cycle (paper section 6, Figure 2, "Solver"): gather the loads that act during
-// this cycle (timed forces and torques, gravity), step the state, and keep diagnostics.
-// A stateful class; the one-call form is simulate() below. Knows nothing of threads,
-// windows or files: the app and the command line drive it.
+// this cycle (timed forces and torques, gravity), compute the constraints' virtual forces,
+// split every vertex's total force into its elastic share sigma_i F_i and rigid share
+// chi_i F_i (section 4.3), step the elastic part and the rigid body, compose them, and keep
+// diagnostics. A stateful class; it knows nothing of threads, windows or files: the app
+// and the command line drive it. docs/semi-rigid-and-constraints.md describes the cycle.
+//
+// Semi-rigid motion. chi_i is the larger of the painted rigidity and 1 - sigma_i from the
+// stiffness cap kappa_0 (effectiveRigidity). When every chi_i is 0 the cycle is exactly the
+// elastic stepper. Otherwise the state is split, Tisserand fashion, into a rigid motion
+// (momentum P and angular momentum L of the whole model, integrated by the Newton-Euler
+// equations under sum chi_i F_i and its torque) and a deformation velocity u_i with zero net
+// momentum and angular momentum (stepped by the elastic stepper under sigma_i F_i). Each
+// cycle the deformation's net momentum and angular momentum are handed to the rigid body,
+// so P and L are conserved exactly (to rounding) by internal forces, whatever chi is.
+// Vertex velocities are v_i = P / M + omega x (r_i - c) + u_i, omega = I^+ L.
 
 #include <limits>
+#include <optional>
+#include <string>
 #include <vector>
 
+#include "zsculpt/constraints/constraints.h"
+#include "zsculpt/constraints/solver.h"
 #include "zsculpt/physics/diagnostics.h"
 #include "zsculpt/physics/stepper.h"
+#include "zsculpt/rigid/rigid_body.h"
 
 namespace zsculpt {
 
@@ -21,11 +38,38 @@ struct TimedLoad {
   [[nodiscard]] bool activeAt(double t) const { return t >= start && t < end; }
 };
 
+/// How the deformation velocities follow the rigid body's rotation over a cycle.
+enum class RigidFrame {
+  /// Turned with the body: the elastic part is stepped in the rigid body's frame (default;
+  /// measured better, see docs).
+  Body,
+  /// Left in the world frame: the plain composition of the two motions.
+  World,
+};
+
 struct SimulationSettings {
   Scheme scheme = Scheme::Default;
   /// The sampling period T (seconds).
   double period = 0.0;
   StepperOptions stepper;
+  RigidFrame rigidFrame = RigidFrame::Body;
+  /// Steps computed per cycle at most while constraints do not yet hold (1 + corrections).
+  int constraintSteps = 6;
+  /// A pinned vertex must end within this of its target (times max(1, model size)).
+  double positionTolerance = 1e-12;
+  /// A constrained normal must end within this angle (rad) of its target.
+  double normalTolerance = 1e-10;
+};
+
+/// Impulses that entered the model since the start (or the last setState), so that momentum
+/// bookkeeping stays honest: P(t) - P(0) = loads + gravity + constraints - damping.
+struct ImpulseLedger {
+  Vec3 loads = Vec3::Zero();        // timed forces and torques, N s
+  Vec3 gravity = Vec3::Zero();      // N s
+  Vec3 constraints = Vec3::Zero();  // virtual forces and velocity corrections, N s
+  /// Angular impulses about the centre of mass at the start of each cycle, N m s.
+  Vec3 loadsAngular = Vec3::Zero();
+  Vec3 constraintsAngular = Vec3::Zero();
 };
 
 class Simulation {
@@ -38,8 +82,11 @@ class Simulation {
   [[nodiscard]] double time() const { return state_.time; }
   [[nodiscard]] const Stepper& stepper() const { return *stepper_; }
   [[nodiscard]] double period() const { return stepper_->period(); }
+  [[nodiscard]] const SimulationSettings& settings() const { return settings_; }
 
-  /// Replaces the state (same vertex count, finite). Throws InvalidInputError.
+  /// Replaces the state (same vertex count, finite). Throws InvalidInputError. With rigid
+  /// vertices, the velocity is split into the rigid motion and the deformation; vertices
+  /// that are fully rigid (chi = 1) keep only the rigid part of theirs. Resets the ledger.
   void setState(const State& state);
 
   /// Loads: forces and torques (section 5.3). Vertex indices are checked.
@@ -49,6 +96,23 @@ class Simulation {
   [[nodiscard]] const std::vector<TimedLoad>& forces() const { return forces_; }
   [[nodiscard]] const std::vector<TimedLoad>& torques() const { return torques_; }
 
+  /// Constraints (section 6). A position constraint without a target pins the vertex where
+  /// it is; a normal constraint without a normal holds the current best-plane normal.
+  /// Errors (InvalidInputError): see constraints.h.
+  Index addPositionConstraint(Index vertex, std::optional<Vec3> target = std::nullopt);
+  Index addNormalConstraint(Index vertex, std::optional<Vec3> normal = std::nullopt);
+  /// The drag tool: move a position constraint's target (takes effect at the next cycle).
+  void setConstraintTarget(Index id, const Vec3& target);
+  void setConstraintNormal(Index id, const Vec3& normal);
+  void removeConstraint(Index id);
+  void clearConstraints();
+  [[nodiscard]] const ConstraintSet& constraints() const { return constraints_; }
+  /// How well the constraints held in the last cycle.
+  [[nodiscard]] const ConstraintReport& constraintReport() const { return report_; }
+  /// Warnings for the user since the last call (merged duplicate constraints, constraints
+  /// that could not be met).
+  std::vector<std::string> takeWarnings();
+
   /// One cycle. Throws DivergenceError if the state becomes non-finite (the state is then
   /// left at the last finite one).
   void step();
@@ -57,17 +121,37 @@ class Simulation {
   [[nodiscard]] Diagnostics diagnostics() const { return measure(model_, state_); }
   /// External forces applied during the last step (N x 3, torques as virtual forces).
   [[nodiscard]] const Points& externalForces() const { return external_; }
+  /// Virtual forces of the constraints during the last step (N x 3).
+  [[nodiscard]] const Points& constraintForces() const { return constraintForce_; }
+  [[nodiscard]] const ImpulseLedger& impulses() const { return ledger_; }
+
+  /// chi_i in use (painted, or from the stiffness cap) and sigma_i = 1 - chi_i.
+  [[nodiscard]] const std::vector<double>& rigidity() const { return chi_; }
+  [[nodiscard]] const std::vector<double>& elasticShare() const { return sigma_; }
+  /// True when some chi_i > 0: the rigid body is part of the cycle.
+  [[nodiscard]] bool rigidActive() const { return rigidActive_; }
+  /// P and L (about the centre of mass) carried by the rigid motion (zero when inactive).
+  [[nodiscard]] const RigidMomentum& rigidMomentum() const { return rigidMomentum_; }
 
   /// For property edits: change model().properties through this, then call
   /// propertiesChanged() with the vertices whose properties (or edges/angles) changed.
+  /// Throws InvalidInputError when a value is out of range (e.g. rigidity outside [0, 1]).
   PhysicalProperties& mutableProperties() { return model_.properties; }
   void propertiesChanged(std::span<const Index> vertices);
   void allPropertiesChanged();
 
  private:
-  void gatherLoads(double t);
+  void gatherLoads(double t, const Points& position, Points& out);
+  void updateRigidity();
+  void splitVelocity();
+  void coupledStep();
+  void runTrial(bool constrained, bool first);
+  void finishRigid();
+  void computeBaseForce(const Points& position);
+  void addToLedger(const Vec3& centre, const Points& velocityDelta);
 
   Model model_;
+  SimulationSettings settings_;
   State state_;
   State lastGood_;
   std::unique_ptr<Stepper> stepper_;
@@ -75,6 +159,40 @@ class Simulation {
   std::vector<TimedLoad> torques_;
   Points external_;
   std::vector<Vec3> armBuffer_, forceBuffer_;
+
+  // Semi-rigid motion (section 4.3).
+  std::vector<double> chi_, sigma_;
+  bool rigidActive_ = false;
+  bool allRigid_ = false;
+  double rigidDamping_ = 0.0;
+  RigidMomentum rigidMomentum_, lastGoodMomentum_;
+  Points deformation_, lastGoodDeformation_;  // u_i (N x 3), when rigid
+  MassProperties start_, end_;
+  Points baseForce_;  // internal + gravity at state_.position, when baseForceValid_
+  bool baseForceValid_ = false;
+  Points totalForce_, loadForce_;  // work buffers
+  double scale_ = 1.0;             // max(1, size of the model): tolerances are relative to it
+  Vec3 startRigidForce_ = Vec3::Zero(), startRigidTorque_ = Vec3::Zero();
+  Vec3 startElasticTorque_ = Vec3::Zero();
+  RigidDrift drift_;
+  Vec3 elasticCentre_ = Vec3::Zero();
+  State elasticStart_;  // the elastic solver's start (positions, u) for trials
+  State trial_;
+
+  // Constraints (section 6).
+  ConstraintSet constraints_;
+  ConstraintSolver solver_;
+  StepResponse response_;
+  std::uint64_t constraintRevision_ = 0;
+  bool responseValid_ = false;
+  Points constraintForce_;
+  Points supportStart_, supportElastic_, velocityDelta_;
+  std::vector<double> supportChi_;
+  ConstraintReport report_;
+  bool warnedUnmet_ = false;
+  std::vector<std::string> warnings_;
+
+  ImpulseLedger ledger_;
 };
 
 }  // namespace zsculpt

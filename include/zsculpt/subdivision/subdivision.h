@@ -9,12 +9,14 @@
 // One level (docs/subdivision.md has the full rule):
 //   - every face corner gives a refined vertex (Doo-Sabin face-point masks); every face
 //     gives an F-face, every interior edge an E-face (quad), every vertex a V-face;
-//   - feature edges (boundary, non-manifold, or two faces of opposite winding) follow a
+//   - feature edges (boundary, non-manifold, or two faces of the same winding) follow a
 //     Chaikin curve rule and keep their faces' E-faces, so open surfaces reach their
-//     boundary; feature vertices that are not regular curve points (curve ends, junctions,
-//     one-face boundary corners) keep a copy of themselves;
+//     boundary; corners (curve ends and junctions, one-face boundary vertices) keep a
+//     copy of themselves, and where every fan of faces wraps around one non-manifold edge
+//     the curve simply ends there;
 //   - curves (edges, no faces) use the same curve rule; vertices on no face of a surface
-//     (a solid's interior, isolated vertices) are carried unchanged.
+//     (a solid's interior, isolated vertices) are carried unchanged; an interior vertex on
+//     only two faces keeps a copy between its two face points (no two-sided V-face).
 // With `interpolate`, the first level translates each vertex's V-face (or boundary
 // segment) so that its centroid sits on the vertex; later levels keep such centroids, so
 // the limit passes through every control vertex.
@@ -59,6 +61,11 @@ class SubdivisionStencil {
   /// Throws InvalidInputError for a level count out of range or too large a result, and
   /// for masses of the wrong size, non-finite or not positive.
   SubdivisionStencil(const Mesh& control, const SubdivisionOptions& options);
+  SubdivisionStencil(const SubdivisionStencil&) = default;
+  SubdivisionStencil& operator=(const SubdivisionStencil&) = default;
+  /// Moves swap the matrices (Eigen 3.4's SparseMatrix would otherwise be copied).
+  SubdivisionStencil(SubdivisionStencil&& other) noexcept;
+  SubdivisionStencil& operator=(SubdivisionStencil&& other) noexcept;
 
   [[nodiscard]] int levels() const;
   [[nodiscard]] Index numControlVertices() const;
@@ -106,7 +113,10 @@ class SubdivisionStencil {
   std::vector<InterpolationAnchor> anchors_;
 };
 
-/// One-call form: the refined mesh at the control mesh's current positions.
+/// One-call form: the refined mesh at the control mesh's current positions. Its vertices
+/// are the stencil's refined vertices, except on degenerate input (e.g. two faces on the
+/// same vertices), where refined vertices joined by an edge coincide: those are merged
+/// (Mesh has no zero-length edge) and faces left degenerate are dropped.
 Mesh subdivide(const Mesh& control, const SubdivisionOptions& options);
 
 /// Normals by a best-plane (least-squares) fit of each vertex's one-ring in `faces`

@@ -1,0 +1,208 @@
+#pragma once
+// The deterministic heart of an interactive session, single-threaded: a Simulation with its
+// editor, loads and constraints, driven by commands (commands.h) and cycles. The solver
+// thread (solver_thread.h) runs one in real time; a replay (recording.h) runs one as fast as
+// it can. Both call the same apply() and advance() in the same order, so a replay gives the
+// same state bit for bit.
+//
+// A cycle (paper section 6, Figure 2, "Solver"): scheduled scene edits that are due, the
+// loads of this cycle (timed forces and torques, the drag), one step, the constraints, the
+// divergence check. cycle() counts the steps taken since the session started (a reset does
+// not rewind it): recordings key commands by it.
+//
+// Divergence (state non-finite, or a vertex beyond kDivergenceScale model sizes): the
+// session rolls back to a checkpoint taken at least kCheckpointInterval cycles earlier,
+// reports it (advance() returns Diverged, lastDivergence() says when and where to), and the
+// caller pauses.
+
+#include <cstdint>
+#include <memory>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "zsculpt/app/commands.h"
+#include "zsculpt/editing/editor.h"
+#include "zsculpt/editing/schedule.h"
+#include "zsculpt/io/scene.h"
+#include "zsculpt/simulation/simulation.h"
+
+namespace zsculpt::app {
+
+/// Everything a session starts from. The scene is the source of truth (a recording stores
+/// it): the model is io::buildModel(scene, mesh), its constraints, loads and timed edits
+/// apply, and `scheme` / `period` replace its simulation settings.
+struct SessionSetup {
+  io::SceneDescription scene;
+  Mesh mesh;
+  Scheme scheme = Scheme::Default;
+  double period = 0.0;
+  /// Initial state (empty: at rest as loaded).
+  std::optional<State> initial;
+};
+
+/// Resolves a MESH|SCENE the way the command line does: a scene's own simulation settings,
+/// else the default scheme at half of equation 5's T_max (0.01 s for a model without
+/// stiffness). Throws as io::loadScene / io::loadMeshSource / io::buildModel do.
+SessionSetup loadSessionSetup(const std::string& source);
+/// The same from a scene already read (`scene.mesh` is loaded).
+SessionSetup sessionSetupFromScene(io::SceneDescription scene);
+/// The period a setup resolves to from a scene's simulation settings and the model's T_max.
+double resolvePeriod(const io::SceneDescription& scene, const Model& model);
+
+/// assets/scenes/default.json: under $ZSCULPT_DATA_DIR if set, else in the source tree this
+/// program was built from. Throws IOError when it is not found.
+std::string defaultScenePath();
+
+/// A hash of a state's bytes (positions, velocities, time): equal states, equal hashes.
+std::uint64_t stateHash(const State& state);
+/// A hash of a mesh's positions and connectivity (to check a replay loads the same mesh).
+std::uint64_t meshHash(const Mesh& mesh);
+
+/// What the display reads after each cycle: the published copy of the session.
+struct Snapshot {
+  std::uint64_t serial = 0;  ///< increases with every publish
+  std::uint64_t cycle = 0;   ///< steps taken
+  std::uint64_t commandsApplied = 0;
+  double time = 0.0;  ///< simulated seconds
+  Points position;
+  Points velocity;
+  /// The per-vertex scalar the display asked for (SolverThread::setDisplayProperty).
+  Property scalarProperty = Property::Stiffness;
+  VectorX scalar;
+  Diagnostics diagnostics;
+  std::vector<Index> pins;
+  std::vector<std::pair<Index, Vec3>> normalPins;
+  std::vector<std::pair<Index, Vec3>> forces;   ///< active now
+  std::vector<std::pair<Index, Vec3>> torques;  ///< active now
+  Index dragVertex = -1;
+  Vec3 dragTarget = Vec3::Zero();
+
+  // Solver status.
+  bool running = false;
+  Scheme scheme = Scheme::Default;
+  double period = 0.0;
+  double tMax = 0.0;          ///< equation 5 for the current properties
+  double stableLimit = 0.0;   ///< the scheme's stable period (Gerschgorin bound)
+  Vec3 gravity = Vec3::Zero();
+  double stiffnessCap = 0.0;
+  double meanDamping = 0.0;
+  double solverSecondsPerStep = 0.0;  ///< moving average of the step's wall time
+  double simOverWall = 0.0;           ///< simulated seconds per wall second (1 = real time)
+  bool fallingBehind = false;         ///< running, and the solver cannot keep up with wall time
+  std::size_t undoDepth = 0;
+  std::size_t redoDepth = 0;
+  bool unsaved = false;  ///< edits since the start or the last MarkSaved
+  std::uint64_t divergences = 0;
+};
+
+struct Divergence {
+  std::uint64_t cycle = 0;  ///< the cycle whose step diverged
+  double time = 0.0;        ///< simulated time it diverged at
+  double rolledBackTo = 0.0;
+  std::string message;
+};
+
+class Session {
+ public:
+  static constexpr std::uint64_t kCheckpointInterval = 32;
+  static constexpr double kDivergenceScale = 1e4;
+
+  /// Builds the model and the simulation. Throws InvalidInputError (scene or settings).
+  explicit Session(SessionSetup setup);
+  ~Session();
+  Session(const Session&) = delete;
+  Session& operator=(const Session&) = delete;
+
+  /// Applies a command. Throws InvalidInputError with a one-line reason and changes nothing
+  /// when it is invalid. Play, Pause and StepOnce only set flags read by the loop
+  /// (running(), takeStepRequest()).
+  void apply(const Command& command);
+
+  enum class Outcome { Stepped, Diverged };
+  /// One cycle (see the top of this file).
+  Outcome advance();
+
+  [[nodiscard]] std::uint64_t cycle() const { return cycle_; }
+  [[nodiscard]] bool running() const { return running_; }
+  /// True once after a StepOnce (consumes the request).
+  bool takeStepRequest();
+  [[nodiscard]] const Simulation& simulation() const { return *sim_; }
+  [[nodiscard]] const Model& model() const { return sim_->model(); }
+  [[nodiscard]] const State& state() const { return sim_->state(); }
+  [[nodiscard]] const io::SceneDescription& scene() const { return setup_.scene; }
+  [[nodiscard]] const SessionSetup& setup() const { return setup_; }
+  [[nodiscard]] const editing::Editor& editor() const { return editor_; }
+  [[nodiscard]] bool unsaved() const { return unsaved_; }
+  [[nodiscard]] const std::optional<Divergence>& lastDivergence() const { return divergence_; }
+  [[nodiscard]] double tMax() const { return tMax_; }
+  /// Vertices held by position constraints (not counting the drag's own), in id order.
+  [[nodiscard]] std::vector<Index> pins() const;
+
+  /// The scene as it stands: painted properties (recordProperties), the constraints now in
+  /// force, the scheme and period; loads and timed edits of the original scene. For "save
+  /// scene".
+  [[nodiscard]] io::SceneDescription currentScene() const;
+  /// The mesh at the current positions (for "save mesh").
+  [[nodiscard]] Mesh currentMesh() const;
+
+  /// Moves the messages of the last cycles (divergence, refused scene edits) to `out`.
+  void takeNotices(std::vector<std::string>& out);
+
+  /// Fills everything in `out` that the session knows (not the solver-thread timing
+  /// fields). Allocates only when a vector must grow.
+  void fill(Snapshot& out, Property scalarProperty);
+
+ private:
+  void rebuildSimulation(Scheme scheme, double period);
+  void reloadLoads();
+  void refreshLimits();
+  void addSceneConstraints();
+  void endDrag();
+  void takeCheckpoint();
+  [[nodiscard]] bool blownUp() const;
+  [[nodiscard]] bool isDragConstraint(const Constraint& c) const {
+    return dragOwnsConstraint_ && c.id == dragId_;
+  }
+
+  SessionSetup setup_;
+  std::unique_ptr<Simulation> sim_;
+  editing::Editor editor_;
+  editing::EditSchedule schedule_;
+  State initial_;
+
+  // Loads: the scene's and the commands', with absolute start/end times.
+  std::vector<TimedLoad> forces_, torques_;
+  std::vector<TimedLoad> baseForces_, baseTorques_;  // the scene's, restored by Reset
+
+  // The drag: a position constraint of its own, or the vertex's pin when it has one (the
+  // drag then moves the pin).
+  Index dragVertex_ = -1;
+  Index dragId_ = -1;
+  bool dragOwnsConstraint_ = false;
+  Vec3 dragTarget_ = Vec3::Zero();
+  editing::BrushRegion region_;  // pin brush
+  std::vector<std::string> notices_;
+
+  // Checkpoints for divergence: two slots, the older one is restored.
+  State checkpoints_[2];
+  std::uint64_t checkpointCycle_[2] = {0, 0};
+  int newestCheckpoint_ = 0;
+  double sizeLimit_ = 0.0;
+  std::optional<Divergence> divergence_;
+  std::uint64_t divergences_ = 0;
+
+  std::uint64_t cycle_ = 0;
+  bool running_ = false;
+  bool stepRequest_ = false;
+  bool unsaved_ = false;
+  double tMax_ = 0.0;
+  double stableLimit_ = 0.0;
+
+  // Display scalar cache.
+  bool scalarStale_ = true;
+  Property scalarProperty_ = Property::Stiffness;
+  VectorX scalar_;
+};
+
+}  // namespace zsculpt::app

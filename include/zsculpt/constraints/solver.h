@@ -1,0 +1,153 @@
+#pragma once
+// Virtual forces for position and normal constraints (paper section 6): the forces that
+// make every constraint hold at the end of the cycle in which they act.
+//
+// The constrained vertices, the vertices of each constrained normal's best plane (vertex
+// plus one-ring), form the support S. A position constraint's unknown is the force on its
+// vertex; a normal constraint's is a couple on its plane's vertices, f_j = mu_j lambda x
+// (r_j - c) about their centre of mass c, so it exerts no net force. Where S ends up after
+// the step is modelled by StepResponse:
+//
+//   elastic   r_e = r_e0 + C (f - f0): every scheme's position update is affine in the
+//             forces held over the step; C is exact for default (T^2/2 (1 - T^2/12 Omega^2)
+//             sigma M^-1), paper (H sigma M^-1) and symplectic-euler, a first-order model for
+//             exact and implicit-euler;
+//   rigid     the same Newton-Euler drift and composition the cycle runs (rigid module),
+//             evaluated exactly.
+//
+// The cycle computes a step, anchors the model at it (r_e0, f0), lets ConstraintSolver
+// solve for the forces on the model (damped Newton on pin forces and plane couples
+// together), and recomputes the step: one correction makes the constraints hold to rounding for the
+// exact-response schemes; the others take a few. Velocities are then made consistent:
+// a pinned vertex moves with its target, a constrained plane does not turn.
+
+#include <Eigen/Dense>
+#include <span>
+#include <vector>
+
+#include "zsculpt/constraints/constraints.h"
+#include "zsculpt/physics/stepper.h"
+#include "zsculpt/rigid/rigid_body.h"
+
+namespace zsculpt {
+
+/// Where the support vertices are at the end of a step, as a function of the virtual forces
+/// on them.
+class StepResponse {
+ public:
+  /// The elastic response for `support` (sorted vertex ids) under `stepper`'s scheme; an
+  /// empty `elasticShare` means sigma = 1. Rebuild after property or constraint changes.
+  void buildElastic(const Stepper& stepper, const Model& model,
+                    std::span<const double> elasticShare, std::span<const Index> support);
+
+  /// The rigid component of this step, or none (positions are then the elastic ones).
+  struct Rigid {
+    MassProperties start;    // at the start of the step
+    RigidMomentum momentum;  // at the start of the step
+    Vec3 force = Vec3::Zero();   // sum chi_i F_i without virtual forces
+    Vec3 torque = Vec3::Zero();  // about start.centre
+    double damping = 0.0;
+    double period = 0.0;
+  };
+  /// `startPosition` and `rigidShare` (chi) of the support vertices, |S| rows.
+  void setRigid(const Rigid& rigid, const Points& startPosition, std::span<const double> rigidShare);
+  void clearRigid() { rigidActive_ = false; }
+
+  /// Anchors the affine elastic model at a computed step: the support's positions after the
+  /// elastic step, the centre of mass after it, and the virtual forces it had.
+  void anchor(const Points& elasticPosition, const Vec3& elasticCentre, const Points& force);
+
+  /// End-of-step positions of the support (|S| x 3) under virtual forces `force` (|S| x 3).
+  void predict(const Points& force, Points& position) const;
+  [[nodiscard]] Index size() const { return static_cast<Index>(elastic_.rows()); }
+
+ private:
+  void rigidMotion(const Points& force, Vec3& centre, RigidDrift& drift) const;
+
+  Eigen::MatrixXd elastic_;  // |S| x |S|
+  VectorX centreShift_;      // d (centre after the elastic step) / d f_l, times total mass
+  double totalMass_ = 0.0;
+  Points anchorPosition_, anchorForce_, start_;
+  Vec3 anchorCentre_ = Vec3::Zero();
+  bool rigidActive_ = false;
+  Rigid rigid_;
+  std::vector<double> chi_;
+  mutable Points elasticWork_;
+};
+
+/// How well the constraints held in the last step.
+struct ConstraintReport {
+  int steps = 0;                // elastic steps computed for this cycle (1 = no correction)
+  double positionError = 0.0;   // largest distance of a pinned vertex from its target
+  double normalError = 0.0;     // largest angle (rad) of a constrained normal from its target
+  bool converged = true;        // both within tolerance
+};
+
+class ConstraintSolver {
+ public:
+  /// (Re)builds the support for the constraints (after any add or remove); forces restart
+  /// from zero.
+  void setUp(const Mesh& mesh, const ConstraintSet& constraints);
+  [[nodiscard]] std::span<const Index> support() const { return support_; }
+  /// Position in support() of a vertex, or -1.
+  [[nodiscard]] Index local(Index vertex) const;
+
+  /// Starts a cycle at `position`: the geometry of the couples and the orientation of the
+  /// normals. The forces start from the previous cycle's (warm start).
+  void beginStep(const Mesh& mesh, const ConstraintSet& constraints, const Points& position,
+                 const VectorX& mass);
+  /// The virtual forces on the support (|S| x 3) for the current unknowns.
+  [[nodiscard]] const Points& forces() const { return forces_; }
+  /// Checks the end-of-step positions (N x 3); fills the report's errors and returns true
+  /// when every constraint holds within the tolerances.
+  bool check(const ConstraintSet& constraints, const Points& endPosition, double positionTolerance,
+             double normalTolerance, ConstraintReport& report);
+  /// Improves the forces against `response` (anchored at the last computed step).
+  void solve(const ConstraintSet& constraints, const StepResponse& response,
+             double positionTolerance, double normalTolerance);
+  /// Velocity consistency at the end of the step: a pinned vertex moves as its target did
+  /// over the step ((end - start) / T), a constrained plane does not turn about axes across
+  /// its normal. Writes the velocity change of every support vertex to `delta` (|S| x 3);
+  /// vertices with no elastic share (sigma = 0) move with the rigid body and are left alone.
+  void velocityCorrection(const ConstraintSet& constraints, const Points& startPosition,
+                          const Points& endPosition, const Points& velocity, const VectorX& mass,
+                          std::span<const double> elasticShare, double period, Points& delta) const;
+
+ private:
+  struct Pin {
+    Index id;
+    Index local;
+  };
+  struct Plane {
+    Index id;
+    std::vector<Index> locals;  // vertex first, then its one-ring
+    std::vector<double> mass;
+    std::vector<Vec3> arm;      // r_j - c at the start of the step
+    Mat3 inertia = Mat3::Zero();  // sum m_j (|arm|^2 1 - arm arm^T)
+    double radius = 1.0;          // mean |arm|
+    Vec3 hint = Vec3::UnitZ();    // the oriented normal at the start of the step
+  };
+  void assembleForces();
+  Vec3 planeNormal(const Plane& plane, const Points& supportPosition);
+  double planeResidual(const ConstraintSet& constraints, const Plane& plane,
+                       const Points& supportPosition, Vec3& rotation);
+  void gatherSupport(const Points& all, Points& out) const;
+
+  std::vector<Index> support_;
+  std::vector<Index> localOf_;  // vertex -> position in support_, or -1
+  std::vector<Pin> pins_;
+  std::vector<Plane> planes_;
+  std::vector<Vec3> pinForce_, couple_;
+  Points forces_, predicted_, supportEnd_;
+  std::vector<Vec3> points_;
+  double residual(const ConstraintSet& constraints, const StepResponse& response, VectorX& out,
+                  double& positionError, double& normalError);
+  void unknowns(VectorX& x) const;
+  void setUnknowns(const VectorX& x);
+
+  Eigen::MatrixXd jacobian_;
+  Eigen::CompleteOrthogonalDecomposition<Eigen::MatrixXd> factor_;
+  VectorX rhs_, step_, base_, trial_, shifted_;
+};
+
+}  // namespace zsculpt

@@ -1,0 +1,895 @@
+// The Display thread of paper section 6: window, input, tools and scripts. Panels are in
+// panels.cpp.
+
+#include <algorithm>
+#include <cmath>
+#include <filesystem>
+#include <fstream>
+
+#define GLFW_INCLUDE_NONE
+#include <GLFW/glfw3.h>
+#include <imgui.h>
+#include <backends/imgui_impl_glfw.h>
+#include <backends/imgui_impl_opengl3.h>
+
+#include "window.h"
+#include "zsculpt/core/errors.h"
+#include "zsculpt/io/atomic_file.h"
+#include "zsculpt/io/state_io.h"
+
+namespace zsculpt::app {
+
+namespace {
+
+namespace fs = std::filesystem;
+
+constexpr unsigned kGlFramebuffer = 0x8D40;
+constexpr unsigned kGlBack = 0x0405;
+constexpr unsigned kGlRgba = 0x1908;
+constexpr unsigned kGlUnsignedByte = 0x1401;
+constexpr unsigned kGlPackAlignment = 0x0D05;
+constexpr unsigned kGlColorBufferBit = 0x4000;
+constexpr unsigned kGlDepthBufferBit = 0x0100;
+
+// GLFW reports errors through a callback; the last one goes into our messages.
+std::string& glfwLastError() {
+  static std::string error;
+  return error;
+}
+void glfwError(int code, const char* description) {
+  glfwLastError() = std::string(description ? description : "unknown error") + " (GLFW error " +
+                    std::to_string(code) + ")";
+}
+
+template <class F>
+void loadGl(F& f, const char* name) {
+  f = reinterpret_cast<F>(glfwGetProcAddress(name));
+  if (f == nullptr) throw IOError(std::string("display: the OpenGL function ") + name + " is missing");
+}
+
+Tool toolFromName(const std::string& name) {
+  if (name == "orbit") return Tool::Orbit;
+  if (name == "drag") return Tool::Drag;
+  if (name == "paint") return Tool::Paint;
+  if (name == "pin") return Tool::Pin;
+  if (name == "normal_pin") return Tool::NormalPin;
+  if (name == "force") return Tool::Force;
+  if (name == "torque") return Tool::Torque;
+  throw InvalidInputError("tool \"" + name +
+                          "\": unknown (valid: orbit, drag, paint, pin, normal_pin, force, torque)");
+}
+
+}  // namespace
+
+void PlotSeries::push(const Diagnostics& d) {
+  kinetic[static_cast<size_t>(next)] = static_cast<float>(d.kinetic);
+  potential[static_cast<size_t>(next)] = static_cast<float>(d.potential.total());
+  total[static_cast<size_t>(next)] = static_cast<float>(d.total());
+  momentum[static_cast<size_t>(next)] = static_cast<float>(d.momentum.norm());
+  angular[static_cast<size_t>(next)] = static_cast<float>(d.angularMomentum.norm());
+  next = (next + 1) % kSize;
+  count = std::min(count + 1, kSize);
+}
+
+// ---- construction -------------------------------------------------------------------------------
+
+Window::Window(SessionSetup setup, const WindowOptions& options) : options_(options) {
+  brush_.property = Property::Stiffness;
+  brush_.mode = editing::BrushMode::Set;
+  brush_.value = 1.0;
+  brush_.strength = 1.0;
+  brush_.radius = 1.0;
+  if (!options_.scriptPath.empty()) loadScript(options_.scriptPath);
+
+  glfwSetErrorCallback(glfwError);
+  if (glfwInit() == GLFW_FALSE)
+    throw IOError("display: cannot open a window: " + glfwLastError() +
+                  ". Without a display use `zsculpt replay`, `zsculpt render` or `zsculpt demo`");
+  glfwWindowHint(GLFW_CONTEXT_VERSION_MAJOR, 3);
+  glfwWindowHint(GLFW_CONTEXT_VERSION_MINOR, 3);
+  glfwWindowHint(GLFW_OPENGL_PROFILE, GLFW_OPENGL_CORE_PROFILE);
+  glfwWindowHint(GLFW_OPENGL_FORWARD_COMPAT, GLFW_TRUE);
+  window_ = glfwCreateWindow(options_.width, options_.height, options_.title.c_str(), nullptr, nullptr);
+  if (window_ == nullptr) {
+    const std::string error = glfwLastError();
+    glfwTerminate();
+    throw IOError("display: cannot create an OpenGL 3.3 core window: " + error);
+  }
+  glfwMakeContextCurrent(window_);
+  glfwSwapInterval(1);
+  try {
+    loadGl(gl_.BindFramebuffer, "glBindFramebuffer");
+    loadGl(gl_.Viewport, "glViewport");
+    loadGl(gl_.ClearColor, "glClearColor");
+    loadGl(gl_.Clear, "glClear");
+    loadGl(gl_.ReadBuffer, "glReadBuffer");
+    loadGl(gl_.PixelStorei, "glPixelStorei");
+    loadGl(gl_.ReadPixels, "glReadPixels");
+    renderer_ = std::make_unique<render::Renderer>(
+        [](const char* name) { return reinterpret_cast<render::GlProc>(glfwGetProcAddress(name)); });
+  } catch (...) {
+    glfwDestroyWindow(window_);
+    glfwTerminate();
+    throw;
+  }
+
+  IMGUI_CHECKVERSION();
+  ImGui::CreateContext();
+  ImGuiIO& io = ImGui::GetIO();
+  io.IniFilename = nullptr;  // never write imgui.ini into the user's folder
+  for (const char* font : {"/usr/share/fonts/truetype/dejavu/DejaVuSans.ttf",
+                           "/usr/share/fonts/dejavu/DejaVuSans.ttf"}) {
+    std::error_code ec;
+    if (fs::exists(font, ec)) {
+      io.Fonts->AddFontFromFileTTF(font, 15.0f);
+      break;
+    }
+  }
+  ImGui::StyleColorsLight();
+  ImGui::GetStyle().WindowRounding = 0.0f;
+  ImGui_ImplGlfw_InitForOpenGL(window_, true);
+  ImGui_ImplOpenGL3_Init("#version 330 core");
+
+  startSession(std::move(setup), !options_.recordPath.empty());
+}
+
+Window::~Window() {
+  try {
+    stopSession();
+  } catch (const std::exception&) {
+  }
+  builder_.reset();
+  if (window_ != nullptr) {
+    glfwMakeContextCurrent(window_);
+    renderer_.reset();
+    ImGui_ImplOpenGL3_Shutdown();
+    ImGui_ImplGlfw_Shutdown();
+    ImGui::DestroyContext();
+    glfwDestroyWindow(window_);
+  }
+  glfwTerminate();
+}
+
+void Window::startSession(SessionSetup setup, bool record) {
+  source_ = setup.scene.sourcePath.empty() ? setup.scene.mesh : setup.scene.sourcePath;
+  mesh_ = std::make_unique<Mesh>(setup.mesh);
+  uniform_ = setup.scene.properties;
+  const io::CameraSettings cameraSettings = setup.scene.camera;
+  recorder_.reset();
+  if (record) recorder_ = std::make_shared<Recorder>(options_.recordPath, setup);
+  auto session = std::make_unique<Session>(std::move(setup));
+  const Snapshot* first = nullptr;
+  SolverThreadOptions so;
+  so.realTime = true;
+  so.speed = options_.speed;
+  so.startRunning = options_.startRunning && !scripted_;
+  solver_ = std::make_unique<SolverThread>(std::move(session), so, recorder_);
+  // Script command lines go to the solver at their cycles.
+  if (scripted_) {
+    std::vector<ScheduledCommand> scheduled;
+    const Recording script = readRecording(scriptPath_);
+    for (const RecordedCommand& c : script.commands) scheduled.push_back({c.cycle, c.command});
+    solver_->schedule(std::move(scheduled));
+  }
+  solver_->start();
+  first = &solver_->latest();
+  tMaxAtStart_ = first->tMax;
+  dtRatio_ = static_cast<float>(std::isfinite(first->tMax) ? first->period / first->tMax : 0.5);
+  schemeIndex_ = static_cast<int>(first->scheme);
+  damping_ = static_cast<float>(first->meanDamping);
+  gravityOn_ = first->gravity.norm() > 0.0;
+  if (gravityOn_)
+    for (int c = 0; c < 3; ++c) gravity_[static_cast<size_t>(c)] = static_cast<float>(first->gravity[c]);
+  capOn_ = std::isfinite(first->stiffnessCap);
+  if (capOn_) cap_ = static_cast<float>(first->stiffnessCap);
+  pushed_ = 0;
+  lastSerial_ = 0;
+  plots_.clear();
+  hover_.reset();
+  gesture_ = Gesture::None;
+
+  builder_ = std::make_unique<FrameBuilder>(*mesh_);
+  view_.levels = affordableLevels(*mesh_, 2);
+  builder_->setLevels(view_.levels);
+  refined_.resize(builder_->stencil() ? builder_->stencil()->numRefinedVertices() : 0, 3);
+  // A brush about two mean edges wide, in scene units.
+  const double edge = mesh_->meanEdgeLength();
+  brush_.radius = edge > 0.0 ? 2.0 * edge : 0.1 * std::max(mesh_->boundingBox().diagonal(), 1e-3);
+  const double diagonal = std::max(mesh_->boundingBox().diagonal(), 1e-6);
+  forceScale_ = 1.0 / diagonal * 4.0;
+  torqueScale_ = 1.0 / diagonal;
+  camera_ = render::Camera{};
+  layout();
+  frameModel();
+  applyCameraSettings(cameraSettings, camera_);
+  if (pathField_.empty()) pathField_ = source_;
+  const std::string stem = fs::path(source_).stem().string();
+  const std::string base = stem.empty() || stem.find(':') != std::string::npos ? "model" : stem;
+  sceneField_ = base + "_sculpted.json";
+  meshField_ = base + "_sculpted.obj";
+  glfwSetWindowTitle(window_, (options_.title + " - " + source_).c_str());
+}
+
+void Window::stopSession() {
+  if (!solver_) return;
+  solver_->stop();
+  Session& session = solver_->sessionWhenStopped();
+  for (std::string& m : solver_->takeMessages()) message(std::move(m));
+  if (recorder_) {
+    recorder_->finish(session.cycle(), session.state());
+    message("recorded " + std::to_string(session.cycle()) + " cycles to " + recorder_->path());
+    recorder_.reset();
+  }
+  if (!options_.stateOut.empty()) io::saveState(session.state(), options_.stateOut);
+  builder_.reset();
+  solver_.reset();
+}
+
+void Window::openModel(const std::string& path) {
+  // Load first: a file that does not load leaves the current model untouched.
+  SessionSetup setup;
+  try {
+    setup = loadSessionSetup(path);
+  } catch (const Error& e) {
+    message(std::string("cannot open: ") + e.what());
+    return;
+  } catch (const std::exception& e) {
+    message(std::string("cannot open ") + path + ": " + e.what());
+    return;
+  }
+  if (recorder_) message("recording stopped: a recording holds one model");
+  stopSession();
+  startSession(std::move(setup), false);
+  message("opened " + path);
+}
+
+// ---- the loop -----------------------------------------------------------------------------------
+
+int Window::run() {
+  while (!quit_) {
+    glfwPollEvents();
+    if (glfwWindowShouldClose(window_)) {
+      glfwSetWindowShouldClose(window_, GLFW_FALSE);
+      requestQuit();
+    }
+    if (!glfwLastError().empty()) {
+      message("GLFW: " + glfwLastError());
+      glfwLastError().clear();
+    }
+    drawFrame();
+  }
+  stopSession();
+  if (scripted_ && !options_.screenshotDir.empty()) {
+    const fs::path log = fs::path(options_.screenshotDir) / "script_log.json";
+    io::writeFileAtomically(log.string(), [&](std::ostream& out) { out << scriptLog_.dump(2) << "\n"; });
+  }
+  return 0;
+}
+
+void Window::layout() {
+  int w = 1, h = 1, ww = 1, wh = 1;
+  glfwGetFramebufferSize(window_, &w, &h);
+  glfwGetWindowSize(window_, &ww, &wh);
+  fbWidth_ = std::max(w, 1);
+  fbHeight_ = std::max(h, 1);
+  pixelScale_ = ww > 0 ? static_cast<double>(fbWidth_) / ww : 1.0;
+  sidebarPixels_ = std::min(static_cast<int>(std::lround(360 * pixelScale_)), fbWidth_ / 2);
+  viewWidth_ = std::max(fbWidth_ - sidebarPixels_, 1);
+  viewHeight_ = fbHeight_;
+}
+
+void Window::message(std::string text) {
+  if (text.empty()) return;
+  log_.push_back(std::move(text));
+  while (log_.size() > 200) log_.pop_front();
+}
+
+void Window::push(Command c) {
+  solver_->push(std::move(c));
+  ++pushed_;
+}
+
+void Window::drawFrame() {
+  layout();
+  for (std::string& m : solver_->takeMessages()) message(std::move(m));
+  const Snapshot& snap = solver_->latest();
+  if (snap.serial != lastSerial_) {
+    lastSerial_ = snap.serial;
+    plots_.push(snap.diagnostics);
+  }
+
+  ImGui_ImplOpenGL3_NewFrame();
+  ImGui_ImplGlfw_NewFrame();
+  ImGui::NewFrame();
+  if (scripted_) stepScript();
+  if (!solver_) return;  // a script opened nothing; defensive
+  readImGuiInput();
+  shortcuts();
+  panels();
+  overlays(solver_->current());
+  ImGui::Render();
+
+  const Snapshot& s = solver_->current();
+  gl_.BindFramebuffer(kGlFramebuffer, 0);
+  gl_.Viewport(0, 0, fbWidth_, fbHeight_);
+  gl_.ClearColor(0.93f, 0.94f, 0.96f, 1.0f);
+  gl_.Clear(kGlColorBufferBit | kGlDepthBufferBit);
+  try {
+    render::Frame& frame = builder_->build(s, view_, camera_);
+    frame.brush.visible = hover_.has_value() && adjust_ == Adjust::None &&
+                          (tool_ == Tool::Paint || (tool_ == Tool::Pin && pinByBrush_));
+    if (frame.brush.visible) {
+      frame.brush.center = hover_->point;
+      frame.brush.normal = hover_->normal;
+      frame.brush.radius = brush_.radius;
+    }
+    renderer_->draw(frame, viewWidth_, viewHeight_, 0);
+  } catch (const Error& e) {
+    message(std::string("display: ") + e.what());
+    view_.levels = 0;
+    builder_->setLevels(0);
+  }
+  gl_.BindFramebuffer(kGlFramebuffer, 0);
+  gl_.Viewport(0, 0, fbWidth_, fbHeight_);
+  ImGui_ImplOpenGL3_RenderDrawData(ImGui::GetDrawData());
+  if (pendingWindowCapture_) captureWindow();
+  glfwSwapBuffers(window_);
+  ++scriptFrame_;
+}
+
+void Window::captureWindow() {
+  const std::string path = *pendingWindowCapture_;
+  pendingWindowCapture_.reset();
+  render::Image image(fbWidth_, fbHeight_);
+  std::vector<std::uint8_t> rows(static_cast<size_t>(fbWidth_) * fbHeight_ * 4);
+  gl_.BindFramebuffer(kGlFramebuffer, 0);
+  gl_.ReadBuffer(kGlBack);
+  gl_.PixelStorei(kGlPackAlignment, 1);
+  gl_.ReadPixels(0, 0, fbWidth_, fbHeight_, kGlRgba, kGlUnsignedByte, rows.data());
+  const size_t stride = static_cast<size_t>(fbWidth_) * 4;
+  for (int y = 0; y < fbHeight_; ++y) {
+    std::copy_n(rows.data() + static_cast<size_t>(fbHeight_ - 1 - y) * stride, stride,
+                image.rgba.data() + static_cast<size_t>(y) * stride);
+  }
+  for (size_t i = 3; i < image.rgba.size(); i += 4) image.rgba[i] = 255;
+  try {
+    render::savePng(path, image);
+    message("window saved to " + path);
+  } catch (const Error& e) {
+    message(e.what());
+  }
+}
+
+void Window::takeScreenshot(const std::string& name, bool window) {
+  // The model alone, rendered offscreen at the view's size (what `zsculpt render` would
+  // draw), and optionally the whole window with its panels.
+  const fs::path dir = options_.screenshotDir.empty() ? fs::path(".") : fs::path(options_.screenshotDir);
+  try {
+    io::ensureWritableDirectory(dir.string());
+    const std::string path = (dir / (name + ".png")).string();
+    render::Image image;
+    render::Frame& frame = builder_->build(solver_->current(), view_, camera_);
+    frame.brush.visible = false;  // the picture shows the model, not the cursor
+    renderer_->drawToImage(frame, viewWidth_, viewHeight_, image);
+    gl_.BindFramebuffer(kGlFramebuffer, 0);
+    render::savePng(path, image);
+    message("screenshot saved to " + path);
+    if (window) pendingWindowCapture_ = (dir / (name + "_window.png")).string();
+  } catch (const Error& e) {
+    message(std::string("screenshot: ") + e.what());
+  }
+}
+
+void Window::requestQuit() {
+  if (scripted_ || !solver_ || !solver_->current().unsaved) {
+    quit_ = true;
+    return;
+  }
+  confirmQuit_ = true;
+}
+
+// ---- input ---------------------------------------------------------------------------------------
+
+void Window::readImGuiInput() {
+  const ImGuiIO& io = ImGui::GetIO();
+  const double x = io.MousePos.x * pixelScale_;
+  const double y = io.MousePos.y * pixelScale_;
+  const bool inView = x >= 0 && x < viewWidth_ && y >= 0 && y < viewHeight_;
+  PointerEvent e;
+  e.x = x;
+  e.y = y;
+  e.shift = io.KeyShift;
+  e.ctrl = io.KeyCtrl;
+  e.alt = io.KeyAlt;
+  // A gesture that started in the view keeps the mouse until the button is released, even
+  // over a panel.
+  const bool captured = io.WantCaptureMouse && gesture_ == Gesture::None;
+  if (!ImGui::IsMousePosValid()) return;
+  if (x != lastX_ || y != lastY_) {
+    e.kind = PointerEvent::Kind::Move;
+    if (!captured || gesture_ != Gesture::None) pointer(e);
+  }
+  for (int b = 0; b < 3; ++b) {
+    if (ImGui::IsMouseClicked(b) && !captured && inView) {
+      e.kind = PointerEvent::Kind::Down;
+      e.button = b;
+      pointer(e);
+    }
+    if (ImGui::IsMouseReleased(b) && gesture_ != Gesture::None && gestureButton_ == b) {
+      e.kind = PointerEvent::Kind::Up;
+      e.button = b;
+      pointer(e);
+    }
+  }
+  if (io.MouseWheel != 0.0f && !captured && inView) {
+    e.kind = PointerEvent::Kind::Wheel;
+    e.wheel = io.MouseWheel;
+    pointer(e);
+  }
+  if (!inView && gesture_ == Gesture::None) hover_.reset();
+}
+
+void Window::pointer(const PointerEvent& e) {
+  const double dx = e.x - lastX_;
+  const double dy = e.y - lastY_;
+  switch (e.kind) {
+    case PointerEvent::Kind::Wheel:
+      camera_.zoom(std::pow(0.88, e.wheel));
+      break;
+    case PointerEvent::Kind::Down: {
+      if (adjust_ != Adjust::None) {
+        // Left click confirms the F / Shift+F adjustment, right click cancels it (Blender).
+        if (e.button == 1) {
+          if (adjust_ == Adjust::Radius) brush_.radius = adjustBefore_;
+          else brush_.strength = adjustBefore_;
+        }
+        adjust_ = Adjust::None;
+        break;
+      }
+      if (gesture_ != Gesture::None) break;
+      gestureButton_ = e.button;
+      if (e.button == 1 || (e.button == 0 && e.shift)) {
+        gesture_ = Gesture::Pan;
+      } else if (e.button == 2 || (e.button == 0 && (e.alt || tool_ == Tool::Orbit))) {
+        gesture_ = Gesture::Orbit;
+      } else if (e.button == 0) {
+        // A tool acts on the model; on the background the left button orbits.
+        hover_ = pick(e.x, e.y);
+        if (hover_) {
+          gesture_ = Gesture::Tool;
+          toolDown(e);
+        } else {
+          gesture_ = Gesture::Orbit;
+        }
+      }
+      break;
+    }
+    case PointerEvent::Kind::Move: {
+      if (adjust_ != Adjust::None) {
+        const double r = std::hypot(e.x - adjustCentreX_, e.y - adjustCentreY_);
+        if (adjust_ == Adjust::Radius) {
+          brush_.radius = std::max(r, 2.0) * worldPerPixel(camera_, viewHeight_, camera_.target);
+        } else {
+          brush_.strength = std::clamp(r / (200.0 * pixelScale_), 0.0, 1.0);
+        }
+        break;
+      }
+      switch (gesture_) {
+        case Gesture::Orbit:
+          camera_.orbit(-0.3 * dx / pixelScale_, 0.3 * dy / pixelScale_);
+          break;
+        case Gesture::Pan:
+          camera_.pan(-dx / viewHeight_, dy / viewHeight_);
+          break;
+        case Gesture::Tool:
+          toolMove(e);
+          break;
+        case Gesture::None:
+          if (tool_ == Tool::Paint || tool_ == Tool::Pin || tool_ == Tool::Drag ||
+              tool_ == Tool::NormalPin || tool_ == Tool::Force || tool_ == Tool::Torque)
+            hover_ = pick(e.x, e.y);
+          break;
+      }
+      break;
+    }
+    case PointerEvent::Kind::Up:
+      if (gesture_ == Gesture::Tool) toolUp(e);
+      gesture_ = Gesture::None;
+      gestureButton_ = -1;
+      break;
+  }
+  lastX_ = e.x;
+  lastY_ = e.y;
+}
+
+void Window::shortcuts() {
+  const ImGuiIO& io = ImGui::GetIO();
+  if (io.WantCaptureKeyboard) return;
+  auto pressed = [](int key) { return ImGui::IsKeyPressed(key, false); };
+  const bool ctrl = io.KeyCtrl, shift = io.KeyShift;
+  if (ctrl && pressed(GLFW_KEY_Z)) {
+    push(Edit{shift ? editing::EditCommand(editing::Redo{}) : editing::EditCommand(editing::Undo{})});
+    return;
+  }
+  if (ctrl && pressed(GLFW_KEY_Y)) {
+    push(Edit{editing::Redo{}});
+    return;
+  }
+  if (ctrl && pressed(GLFW_KEY_S)) {
+    saveScene(sceneField_, false);
+    return;
+  }
+  if (ctrl) return;
+  if (pressed(GLFW_KEY_SPACE)) push(solver_->current().running ? Command(Pause{}) : Command(Play{}));
+  if (pressed(GLFW_KEY_PERIOD)) push(StepOnce{});
+  if (pressed(GLFW_KEY_HOME)) frameModel();
+  if (pressed(GLFW_KEY_F12)) takeScreenshot("screenshot_" + std::to_string(++screenshotCounter_), true);
+  if (pressed(GLFW_KEY_ESCAPE)) {
+    if (adjust_ == Adjust::Radius) brush_.radius = adjustBefore_;
+    if (adjust_ == Adjust::Strength) brush_.strength = adjustBefore_;
+    adjust_ = Adjust::None;
+  }
+  if (pressed(GLFW_KEY_ENTER)) adjust_ = Adjust::None;
+  if (pressed(GLFW_KEY_F) && gesture_ == Gesture::None) {
+    // Blender: F then move the mouse sets the radius, Shift+F the strength; click confirms.
+    const double x = io.MousePos.x * pixelScale_, y = io.MousePos.y * pixelScale_;
+    if (shift) {
+      adjust_ = Adjust::Strength;
+      adjustBefore_ = brush_.strength;
+      adjustCentreX_ = x - brush_.strength * 200.0 * pixelScale_;
+    } else {
+      adjust_ = Adjust::Radius;
+      adjustBefore_ = brush_.radius;
+      adjustCentreX_ = x - brush_.radius / worldPerPixel(camera_, viewHeight_, camera_.target);
+    }
+    adjustCentreY_ = y;
+  }
+  if (shift) return;
+  if (pressed(GLFW_KEY_Q)) tool_ = Tool::Orbit;
+  if (pressed(GLFW_KEY_D)) tool_ = Tool::Drag;
+  if (pressed(GLFW_KEY_B)) tool_ = Tool::Paint;
+  if (pressed(GLFW_KEY_P)) tool_ = Tool::Pin;
+  if (pressed(GLFW_KEY_N)) tool_ = Tool::NormalPin;
+  if (pressed(GLFW_KEY_V)) tool_ = Tool::Force;
+  if (pressed(GLFW_KEY_T)) tool_ = Tool::Torque;
+  if (pressed(GLFW_KEY_R)) push(Edit{editing::Relax{}});
+}
+
+void Window::frameModel() {
+  if (!solver_) return;
+  render::Frame& f = builder_->build(solver_->current(), view_, camera_);
+  render::frameScene(f, static_cast<double>(viewWidth_) / viewHeight_);
+  camera_ = f.camera;
+}
+
+// ---- tools ---------------------------------------------------------------------------------------
+
+std::optional<Pick> Window::pick(double x, double y) {
+  const Snapshot& s = solver_->current();
+  if (s.position.rows() != mesh_->numVertices()) return std::nullopt;
+  const Ray ray = rayThroughPixel(camera_, viewWidth_, viewHeight_, x, y);
+  Pick p;
+  if (mesh_->numFaces() > 0) {
+    const SubdivisionStencil* stencil = builder_->stencil();
+    std::optional<SurfaceHit> hit;
+    if (stencil != nullptr && view_.surface) {
+      if (refined_.rows() != stencil->numRefinedVertices()) refined_.resize(stencil->numRefinedVertices(), 3);
+      stencil->apply(s.position, refined_);
+      hit = pickSurface(stencil->refinedFaces(), refined_, ray);
+      if (!hit) return std::nullopt;
+      p.vertex = nearestVertex(s.position, hit->point);
+    } else {
+      hit = pickSurface(mesh_->faces(), s.position, ray);
+      if (!hit) return std::nullopt;
+      p.vertex = hit->nearestCorner;
+      p.controlFace = hit->face;
+    }
+    p.point = hit->point;
+    p.normal = hit->normal;
+    return p;
+  }
+  // Curves and point sets: the vertex nearest the ray within a few pixels.
+  const double tolerance = 8.0 * pixelScale_ * worldPerPixel(camera_, viewHeight_, camera_.target);
+  p.vertex = pickNearestVertex(s.position, ray, tolerance);
+  if (p.vertex < 0) return std::nullopt;
+  p.point = s.position.row(p.vertex).transpose();
+  p.normal = -ray.direction;
+  return p;
+}
+
+editing::Brush Window::effectiveBrush(bool ctrl) const {
+  editing::Brush b = brush_;
+  if (!ctrl) return b;
+  // Ctrl inverts the brush (Blender): add subtracts, multiply divides, set paints the
+  // scene's uniform value back ("erase"), smooth stays smooth.
+  switch (b.mode) {
+    case editing::BrushMode::Add: b.value = -b.value; break;
+    case editing::BrushMode::Multiply: b.value = b.value > 0.0 ? 1.0 / b.value : b.value; break;
+    case editing::BrushMode::Set: {
+      const UniformProperties& u = uniform_;
+      switch (b.property) {
+        case Property::Mass: b.value = u.mass; break;
+        case Property::Damping: b.value = u.damping; break;
+        case Property::Stiffness: b.value = u.stiffness; break;
+        case Property::AngularStiffness: b.value = u.angularStiffness; break;
+        case Property::Rigidity: b.value = u.rigidity; break;
+        default: b.mode = editing::BrushMode::Smooth; break;
+      }
+      break;
+    }
+    case editing::BrushMode::Smooth: break;
+  }
+  return b;
+}
+
+void Window::dabAt(const Pick& p, bool ctrl) {
+  editing::Dab dab;
+  dab.brush = effectiveBrush(ctrl);
+  dab.centre = p.controlFace >= 0 ? editing::BrushCentre::onFace(p.controlFace, p.point)
+                                  : editing::BrushCentre::atPoint(p.point);
+  push(Edit{dab});
+  lastDab_ = p.point;
+  dabbed_ = true;
+}
+
+void Window::toolDown(const PointerEvent& e) {
+  const Pick& p = *hover_;
+  const Snapshot& s = solver_->current();
+  toolVertex_ = p.vertex;
+  ctrlStroke_ = e.ctrl;
+  dabbed_ = false;
+  const Vec3 at = s.position.row(p.vertex).transpose();
+  toolAnchor_ = at;
+  loadEnd_ = at;
+  switch (tool_) {
+    case Tool::Drag: push(DragStart{p.vertex, at}); break;
+    case Tool::Paint: dabAt(p, e.ctrl); break;
+    case Tool::Pin:
+      if (pinByBrush_) {
+        const editing::BrushCentre centre = p.controlFace >= 0
+                                                ? editing::BrushCentre::onFace(p.controlFace, p.point)
+                                                : editing::BrushCentre::atPoint(p.point);
+        push(PinBrush{centre, brush_.radius, !e.ctrl});
+        lastDab_ = p.point;
+      } else {
+        push(e.ctrl ? Command(Unpin{p.vertex}) : Command(Pin{p.vertex, std::nullopt}));
+      }
+      break;
+    case Tool::NormalPin:
+      push(e.ctrl ? Command(UnpinNormal{p.vertex}) : Command(PinNormal{p.vertex, std::nullopt}));
+      break;
+    case Tool::Force:
+    case Tool::Torque:
+    case Tool::Orbit: break;
+  }
+}
+
+void Window::toolMove(const PointerEvent& e) {
+  const Ray ray = rayThroughPixel(camera_, viewWidth_, viewHeight_, e.x, e.y);
+  switch (tool_) {
+    case Tool::Drag:
+      // The dragged vertex follows the cursor in the plane through its start facing the
+      // camera (section 6: a moving position constraint).
+      push(DragMove{onViewPlane(camera_, ray, toolAnchor_)});
+      break;
+    case Tool::Paint:
+    case Tool::Pin: {
+      hover_ = pick(e.x, e.y);
+      if (!hover_) break;
+      // Dabs spaced a quarter radius apart along the stroke.
+      if ((hover_->point - lastDab_).norm() < 0.25 * brush_.radius) break;
+      if (tool_ == Tool::Paint) {
+        dabAt(*hover_, ctrlStroke_);
+      } else if (pinByBrush_) {
+        const editing::BrushCentre centre = hover_->controlFace >= 0
+                                                ? editing::BrushCentre::onFace(hover_->controlFace, hover_->point)
+                                                : editing::BrushCentre::atPoint(hover_->point);
+        push(PinBrush{centre, brush_.radius, !ctrlStroke_});
+        lastDab_ = hover_->point;
+      }
+      break;
+    }
+    case Tool::Force:
+    case Tool::Torque:
+      loadEnd_ = onViewPlane(camera_, ray, toolAnchor_);
+      break;
+    default: break;
+  }
+}
+
+void Window::toolUp(const PointerEvent&) {
+  switch (tool_) {
+    case Tool::Drag: push(DragEnd{}); break;
+    case Tool::Force:
+    case Tool::Torque: {
+      const Vec3 drag = loadEnd_ - toolAnchor_;
+      if (drag.norm() <= 0.0) break;
+      if (tool_ == Tool::Force) {
+        push(AddLoad{LoadKind::Force, toolVertex_, forceScale_ * drag, loadDuration_});
+      } else {
+        // Trackball-like: dragging right spins the near side of the surface to the right,
+        // about the screen's up axis through the vertex.
+        const Vec3 toViewer = (camera_.eye() - camera_.target).normalized();
+        push(AddLoad{LoadKind::Torque, toolVertex_, torqueScale_ * toViewer.cross(drag), loadDuration_});
+      }
+      break;
+    }
+    default: break;
+  }
+  toolVertex_ = -1;
+}
+
+// ---- scripts -------------------------------------------------------------------------------------
+
+void Window::loadScript(const std::string& path) {
+  const Recording script = readRecording(path);  // throws on malformed lines
+  for (const auto& [line, j] : script.ui) {
+    const std::string where = path + ": line " + std::to_string(line);
+    if (!j.at("ui").is_string()) throw InvalidInputError(where + ": ui: expected an action name");
+    const std::string action = j.at("ui").get<std::string>();
+    static const char* known[] = {"wait_frames", "wait_cycle", "wait_time", "wait_applied", "command",
+                                  "tool", "brush", "display", "camera", "mouse_down", "mouse_move",
+                                  "mouse_up", "screenshot", "probe", "save_scene", "save_mesh", "quit",
+                                  "frame"};
+    if (std::find_if(std::begin(known), std::end(known), [&](const char* k) { return action == k; }) ==
+        std::end(known))
+      throw InvalidInputError(where + ": ui: unknown action \"" + action + "\"");
+    if (action == "command") commandFromJson(j.at("command"), where + ": command");
+    if (action == "tool") toolFromName(j.value("tool", std::string()));
+  }
+  script_ = script.ui;
+  scriptPath_ = path;
+  scripted_ = true;
+}
+
+std::optional<PointerEvent> Window::scriptPointer(const nlohmann::json& j, PointerEvent::Kind kind) {
+  PointerEvent e;
+  e.kind = kind;
+  double x = scriptX_, y = scriptY_;
+  if (j.contains("at_vertex")) {
+    const Index v = j.at("at_vertex").get<Index>();
+    const Snapshot& s = solver_->current();
+    if (v < 0 || v >= s.position.rows()) throw InvalidInputError("at_vertex " + std::to_string(v) + ": no such vertex");
+    const auto px = projectToPixel(camera_, viewWidth_, viewHeight_, s.position.row(v).transpose());
+    if (!px) throw InvalidInputError("at_vertex " + std::to_string(v) + ": behind the camera");
+    x = px->x();
+    y = px->y();
+    scriptLog_.push_back({{"frame", scriptFrame_}, {"vertex", v}, {"pixel", {x, y}}, {"event", j.at("ui")}});
+  } else if (j.contains("at")) {
+    x = j.at("at")[0].get<double>() * pixelScale_;
+    y = j.at("at")[1].get<double>() * pixelScale_;
+  }
+  if (j.contains("offset")) {
+    x += j.at("offset")[0].get<double>() * pixelScale_;
+    y += j.at("offset")[1].get<double>() * pixelScale_;
+  }
+  e.x = x;
+  e.y = y;
+  e.button = j.value("button", 0);
+  e.ctrl = j.value("ctrl", false);
+  e.shift = j.value("shift", false);
+  e.alt = j.value("alt", false);
+  scriptX_ = x;
+  scriptY_ = y;
+  return e;
+}
+
+void Window::stepScript() {
+  if (scriptWaitFrames_ > 0) {
+    --scriptWaitFrames_;
+    return;
+  }
+  const Snapshot& s = solver_->current();
+  while (scriptNext_ < script_.size()) {
+    const auto& [line, j] = script_[scriptNext_];
+    const std::string where = scriptPath_ + ": line " + std::to_string(line);
+    const std::string action = j.at("ui").get<std::string>();
+    try {
+      if (action == "wait_frames") {
+        scriptWaitFrames_ = j.value("frames", 1);
+        ++scriptNext_;
+        return;
+      }
+      if (action == "wait_cycle") {
+        if (s.cycle < j.at("cycle").get<std::uint64_t>()) return;
+      } else if (action == "wait_time") {
+        if (s.time < j.at("time").get<double>()) return;
+      } else if (action == "wait_applied") {
+        if (s.commandsApplied < pushed_) return;
+      } else if (action == "command") {
+        push(commandFromJson(j.at("command"), where));
+      } else if (action == "tool") {
+        tool_ = toolFromName(j.at("tool").get<std::string>());
+        if (j.contains("pin_by_brush")) pinByBrush_ = j.at("pin_by_brush").get<bool>();
+      } else if (action == "brush") {
+        if (j.contains("property")) brush_.property = propertyFromName(j.at("property").get<std::string>());
+        if (j.contains("mode")) brush_.mode = editing::brushModeFromName(j.at("mode").get<std::string>());
+        if (j.contains("value")) brush_.value = j.at("value").get<double>();
+        if (j.contains("strength")) brush_.strength = j.at("strength").get<double>();
+        if (j.contains("radius")) brush_.radius = j.at("radius").get<double>();
+        if (j.contains("falloff")) brush_.falloff = editing::falloffFromName(j.at("falloff").get<std::string>());
+      } else if (action == "display") {
+        if (j.contains("property")) {
+          view_.colourByProperty = true;
+          solver_->setDisplayProperty(propertyFromName(j.at("property").get<std::string>()));
+        }
+        if (j.contains("colour_map")) view_.colorMap = render::colorMapFromName(j.at("colour_map").get<std::string>());
+        if (j.contains("levels")) {
+          view_.levels = affordableLevels(*mesh_, j.at("levels").get<int>());
+          builder_->setLevels(view_.levels);
+        }
+        if (j.contains("range")) {
+          view_.autoRange = false;
+          view_.rangeMin = j.at("range")[0].get<double>();
+          view_.rangeMax = j.at("range")[1].get<double>();
+        }
+        if (j.contains("wireframe")) view_.wireframe = j.at("wireframe").get<bool>();
+        if (j.contains("points")) view_.points = j.at("points").get<bool>();
+      } else if (action == "camera") {
+        if (j.value("frame", false)) frameModel();
+        if (j.contains("yaw")) camera_.yawDegrees = j.at("yaw").get<double>();
+        if (j.contains("pitch")) camera_.pitchDegrees = std::clamp(j.at("pitch").get<double>(), -89.0, 89.0);
+        if (j.contains("zoom")) camera_.zoom(j.at("zoom").get<double>());
+      } else if (action == "frame") {
+        frameModel();
+      } else if (action == "mouse_down" || action == "mouse_move" || action == "mouse_up") {
+        const PointerEvent::Kind kind = action == "mouse_down" ? PointerEvent::Kind::Down
+                                        : action == "mouse_move" ? PointerEvent::Kind::Move
+                                                                 : PointerEvent::Kind::Up;
+        if (auto e = scriptPointer(j, kind)) {
+          if (kind == PointerEvent::Kind::Down) {
+            // The cursor arrives first (hover), then the button goes down.
+            PointerEvent move = *e;
+            move.kind = PointerEvent::Kind::Move;
+            pointer(move);
+            scriptButtonDown_ = true;
+          }
+          if (kind == PointerEvent::Kind::Up) scriptButtonDown_ = false;
+          pointer(*e);
+          if (kind == PointerEvent::Kind::Down && gesture_ != Gesture::Tool)
+            message(where + ": mouse_down did not land on the model");
+        }
+        ++scriptNext_;
+        return;  // one pointer event per frame, as a user's would be
+      } else if (action == "screenshot") {
+        takeScreenshot(j.value("name", "script_" + std::to_string(line)), j.value("window", true));
+      } else if (action == "probe") {
+        const Index v = j.at("vertex").get<Index>();
+        const auto px = projectToPixel(camera_, viewWidth_, viewHeight_, s.position.row(v).transpose());
+        if (px)
+          scriptLog_.push_back({{"frame", scriptFrame_}, {"probe", j.value("name", std::string())},
+                                {"vertex", v}, {"pixel", {px->x(), px->y()}},
+                                {"position", {s.position(v, 0), s.position(v, 1), s.position(v, 2)}},
+                                {"scalar", s.scalar.size() > v ? s.scalar[v] : 0.0}});
+      } else if (action == "save_scene" || action == "save_mesh") {
+        // Relative paths are relative to the screenshot folder, so a script's outputs stay
+        // together.
+        fs::path path = j.at("path").get<std::string>();
+        if (path.is_relative() && !options_.screenshotDir.empty()) path = fs::path(options_.screenshotDir) / path;
+        if (action == "save_scene")
+          saveScene(path.string(), false);
+        else
+          saveMesh(path.string());
+      } else if (action == "quit") {
+        ++scriptNext_;
+        quit_ = true;
+        return;
+      }
+    } catch (const std::exception& e) {
+      // A script error is reported and the script goes on (a user's mistake would not
+      // stop the program either).
+      message(where + ": " + e.what());
+      scriptLog_.push_back({{"frame", scriptFrame_}, {"error", where + ": " + e.what()}});
+    }
+    ++scriptNext_;
+  }
+}
+
+// ---- entry point ------------------------------------------------------------------------------
+
+int runWindow(SessionSetup setup, const WindowOptions& options) {
+  Window window(std::move(setup), options);
+  return window.run();
+}
+
+}  // namespace zsculpt::app

@@ -1,0 +1,441 @@
+// The Dear ImGui panels of the window: simulation, tools and brush, display, live plots,
+// statistics, file, messages; the unsaved-edits dialogs; overlays drawn over the 3D view.
+
+#include <algorithm>
+#include <cmath>
+#include <cstdio>
+#include <filesystem>
+#include <limits>
+
+#include <imgui.h>
+#include <imgui_stdlib.h>
+
+#include "window.h"
+#include "zsculpt/core/errors.h"
+#include "zsculpt/io/mesh_io.h"
+
+namespace zsculpt::app {
+
+namespace {
+
+const char* kSchemes[] = {"default", "paper", "exact", "symplectic-euler", "implicit-euler"};
+const char* kProperties[] = {"mass", "damping", "stiffness", "angular_stiffness", "rigidity",
+                             "rest_length", "rest_angle"};
+const char* kModes[] = {"set", "add", "multiply", "smooth"};
+const char* kFalloffs[] = {"smooth", "sphere", "linear", "sharp", "constant"};
+const char* kMaps[] = {"viridis", "diverging", "weight"};
+
+void help(const char* text) {
+  if (ImGui::IsItemHovered()) {
+    ImGui::BeginTooltip();
+    ImGui::PushTextWrapPos(ImGui::GetFontSize() * 28.0f);
+    ImGui::TextUnformatted(text);
+    ImGui::PopTextWrapPos();
+    ImGui::EndTooltip();
+  }
+}
+
+std::string seconds(double s) {
+  char text[32];
+  if (!std::isfinite(s)) return "inf";
+  std::snprintf(text, sizeof text, s < 0.01 ? "%.3g s" : "%.4f s", s);
+  return text;
+}
+
+// PlotLines over a ring buffer: the oldest sample first.
+void plot(const char* label, const std::array<float, PlotSeries::kSize>& data, const PlotSeries& series,
+          float height) {
+  const int count = series.count;
+  const int offset = count < PlotSeries::kSize ? 0 : series.next;
+  float lo = std::numeric_limits<float>::infinity(), hi = -lo;
+  for (int i = 0; i < count; ++i) {
+    lo = std::min(lo, data[static_cast<size_t>(i)]);
+    hi = std::max(hi, data[static_cast<size_t>(i)]);
+  }
+  if (count == 0) lo = hi = 0.0f;
+  if (hi - lo < 1e-9f * (std::abs(hi) + 1.0f)) {
+    hi += 0.5f * (std::abs(hi) + 1e-6f);
+    lo -= 0.5f * (std::abs(lo) + 1e-6f);
+  }
+  char overlay[96];
+  const float last = count > 0 ? data[static_cast<size_t>((series.next + PlotSeries::kSize - 1) % PlotSeries::kSize)] : 0.0f;
+  std::snprintf(overlay, sizeof overlay, "%s %.4g", label, static_cast<double>(last));
+  ImGui::PlotLines((std::string("##") + label).c_str(), data.data(), count, offset, overlay, lo, hi,
+                   ImVec2(-1.0f, height));
+}
+
+}  // namespace
+
+void Window::panels() {
+  const Snapshot& s = solver_->current();
+  const ImGuiIO& io = ImGui::GetIO();
+  const float sidebar = static_cast<float>(sidebarPixels_ / pixelScale_);
+  ImGui::SetNextWindowPos(ImVec2(io.DisplaySize.x - sidebar, 0.0f));
+  ImGui::SetNextWindowSize(ImVec2(sidebar, io.DisplaySize.y));
+  ImGui::Begin("zsculpt", nullptr,
+               ImGuiWindowFlags_NoMove | ImGuiWindowFlags_NoResize | ImGuiWindowFlags_NoCollapse |
+                   ImGuiWindowFlags_NoTitleBar);
+  // Status line: what the solver is doing, and any divergence.
+  if (s.running)
+    ImGui::TextColored(ImVec4(0.1f, 0.55f, 0.2f, 1), "running  t = %.2f s", s.time);
+  else
+    ImGui::TextColored(ImVec4(0.6f, 0.4f, 0.0f, 1), "paused  t = %.2f s", s.time);
+  if (s.fallingBehind) {
+    ImGui::SameLine();
+    ImGui::TextColored(ImVec4(0.8f, 0.1f, 0.1f, 1), "  falling behind (x%.2f)", s.simOverWall);
+    help("The solver needs longer for a step than the step simulates, so simulated time runs "
+         "slower than wall time (the paper's solver fell behind beyond about 1200 vertices). "
+         "Raise the time step, lower the stiffness, or use a coarser model.");
+  }
+  if (s.unsaved) {
+    ImGui::SameLine();
+    ImGui::TextDisabled("  (unsaved edits)");
+  }
+
+  if (ImGui::CollapsingHeader("Simulation", ImGuiTreeNodeFlags_DefaultOpen)) simulationPanel(s);
+  if (ImGui::CollapsingHeader("Tools and brush", ImGuiTreeNodeFlags_DefaultOpen)) toolPanel(s);
+  if (ImGui::CollapsingHeader("Display", ImGuiTreeNodeFlags_DefaultOpen)) displayPanel(s);
+  if (ImGui::CollapsingHeader("Plots", ImGuiTreeNodeFlags_DefaultOpen)) plotPanel(s);
+  if (ImGui::CollapsingHeader("Statistics")) statisticsPanel(s);
+  if (ImGui::CollapsingHeader("File")) filePanel(s);
+  if (ImGui::CollapsingHeader("Messages", ImGuiTreeNodeFlags_DefaultOpen)) messagePanel();
+  ImGui::End();
+  popups(s);
+}
+
+void Window::simulationPanel(const Snapshot& s) {
+  if (ImGui::Button(s.running ? "Pause" : "Play")) push(s.running ? Command(Pause{}) : Command(Play{}));
+  help("Space");
+  ImGui::SameLine();
+  if (ImGui::Button("Step")) push(StepOnce{});
+  help("Period key: one cycle");
+  ImGui::SameLine();
+  if (ImGui::Button("Reset")) push(Reset{});
+  help("Back to the initial state; painted properties stay (undo them with Ctrl+Z).");
+
+  ImGui::Combo("scheme", &schemeIndex_, kSchemes, IM_ARRAYSIZE(kSchemes));
+  ImGui::SliderFloat("T / T_max", &dtRatio_, 0.05f, 1.5f, "%.3f");
+  help("The time step as a fraction of equation 5's critical period T_max. Above the "
+       "scheme's stable limit the simulation diverges (it is then rolled back and paused).");
+  const double period = dtRatio_ * s.tMax;
+  const bool changed = static_cast<int>(s.scheme) != schemeIndex_ ||
+                       (std::isfinite(period) && std::abs(period - s.period) > 1e-12 * s.period);
+  if (!changed) ImGui::BeginDisabled();
+  if (ImGui::Button("Apply time step")) {
+    const double p = std::isfinite(period) && period > 0.0 ? period : s.period;
+    push(SetTimeStep{static_cast<Scheme>(schemeIndex_), p});
+  }
+  if (!changed) ImGui::EndDisabled();
+  ImGui::Text("T = %s = %.3f T_max,  T_max = %s", seconds(s.period).c_str(),
+              std::isfinite(s.tMax) ? s.period / s.tMax : 0.0, seconds(s.tMax).c_str());
+  if (s.period > s.stableLimit)
+    ImGui::TextColored(ImVec4(0.8f, 0.1f, 0.1f, 1), "T is above the stable limit %s",
+                       seconds(s.stableLimit).c_str());
+
+  ImGui::SliderFloat("damping", &damping_, 0.0f, 1.0f, "%.4f kg/s", ImGuiSliderFlags_Logarithmic);
+  help("rho of equation 1 on every vertex (a global edit: Ctrl+Z undoes it).");
+  if (ImGui::IsItemDeactivatedAfterEdit()) {
+    editing::Brush b;
+    b.property = Property::Damping;
+    b.mode = editing::BrushMode::Set;
+    b.value = damping_;
+    push(Edit{editing::GlobalEdit{b}});
+  }
+  bool gravityChanged = ImGui::Checkbox("gravity", &gravityOn_);
+  ImGui::SameLine();
+  ImGui::SetNextItemWidth(-1.0f);
+  ImGui::InputFloat3("##gravity", gravity_.data(), "%.2f");
+  gravityChanged |= ImGui::IsItemDeactivatedAfterEdit();
+  if (gravityChanged) {
+    const Vec3 g = gravityOn_ ? Vec3(gravity_[0], gravity_[1], gravity_[2]) : Vec3::Zero();
+    push(SetGravity{g});
+  }
+  bool capChanged = ImGui::Checkbox("stiffness cap", &capOn_);
+  help("kappa_0 of section 4.3: vertices stiffer than this become partly rigid, so the "
+       "critical period depends on kappa_0 instead of the stiffest vertex.");
+  ImGui::SameLine();
+  ImGui::SetNextItemWidth(-1.0f);
+  ImGui::InputFloat("##cap", &cap_, 0.0f, 0.0f, "%.3g N/m");
+  capChanged |= ImGui::IsItemDeactivatedAfterEdit();
+  if (capChanged) {
+    if (capOn_ && !(cap_ > 0.0f)) {
+      message("stiffness cap: must be positive");
+    } else {
+      push(SetStiffnessCap{capOn_ ? static_cast<double>(cap_) : std::numeric_limits<double>::infinity()});
+    }
+  }
+}
+
+void Window::toolPanel(const Snapshot& s) {
+  (void)s;
+  int tool = static_cast<int>(tool_);
+  const char* names[] = {"orbit (Q)", "drag (D)", "paint (B)", "pin (P)", "normal pin (N)",
+                         "force (V)", "torque (T)"};
+  for (int i = 0; i < 7; ++i) {
+    if (i % 3 != 0) ImGui::SameLine();
+    ImGui::RadioButton(names[i], &tool, i);
+  }
+  tool_ = static_cast<Tool>(tool);
+  switch (tool_) {
+    case Tool::Orbit: ImGui::TextWrapped("Left-drag orbits, right-drag or Shift+left pans, wheel zooms, Home frames."); break;
+    case Tool::Drag: ImGui::TextWrapped("Press on the model and drag: the vertex follows the cursor (a moving position constraint)."); break;
+    case Tool::Paint: ImGui::TextWrapped("Paint the property below. F: radius, Shift+F: strength, Ctrl: invert."); break;
+    case Tool::Pin: ImGui::TextWrapped("Click pins the vertex, Ctrl+click unpins; with 'by brush' a stroke pins (Ctrl: unpins) everything under the brush."); break;
+    case Tool::NormalPin: ImGui::TextWrapped("Click holds the normal at the vertex as it is; Ctrl+click releases it."); break;
+    case Tool::Force: ImGui::TextWrapped("Press on a vertex and drag: the arrow is the force, applied on release for the duration below."); break;
+    case Tool::Torque: ImGui::TextWrapped("Press on a vertex and drag: a torque that spins the surface like a trackball, applied on release."); break;
+  }
+  if (tool_ == Tool::Pin) ImGui::Checkbox("pin by brush", &pinByBrush_);
+  if (tool_ == Tool::Force || tool_ == Tool::Torque) {
+    float scale = static_cast<float>(tool_ == Tool::Force ? forceScale_ : torqueScale_);
+    if (ImGui::InputFloat(tool_ == Tool::Force ? "N per unit" : "N m per unit", &scale, 0, 0, "%.3g") && scale > 0)
+      (tool_ == Tool::Force ? forceScale_ : torqueScale_) = scale;
+    ImGui::SliderFloat("duration", &loadDuration_, 0.05f, 10.0f, "%.2f s", ImGuiSliderFlags_Logarithmic);
+    if (ImGui::Button("Clear loads")) push(ClearLoads{});
+  }
+  if (tool_ == Tool::Pin || tool_ == Tool::NormalPin) {
+    if (ImGui::Button("Unpin all")) push(UnpinAll{});
+  }
+
+  ImGui::Separator();
+  ImGui::TextDisabled("Brush");
+  int property = static_cast<int>(brush_.property);
+  if (ImGui::Combo("property", &property, kProperties, IM_ARRAYSIZE(kProperties)))
+    brush_.property = static_cast<Property>(property);
+  int mode = static_cast<int>(brush_.mode);
+  if (ImGui::Combo("mode", &mode, kModes, IM_ARRAYSIZE(kModes))) brush_.mode = static_cast<editing::BrushMode>(mode);
+  if (brush_.mode != editing::BrushMode::Smooth) ImGui::InputDouble("value", &brush_.value, 0.0, 0.0, "%.4g");
+  float strength = static_cast<float>(brush_.strength);
+  if (ImGui::SliderFloat("strength", &strength, 0.0f, 1.0f)) brush_.strength = strength;
+  help("Shift+F then move the mouse (Blender)");
+  float radius = static_cast<float>(brush_.radius);
+  if (ImGui::InputFloat("radius", &radius, 0, 0, "%.3g") && radius > 0.0f) brush_.radius = radius;
+  help("Scene units. F then move the mouse, click to confirm, right click or Esc to cancel (Blender).");
+  int falloff = static_cast<int>(brush_.falloff);
+  if (ImGui::Combo("falloff", &falloff, kFalloffs, IM_ARRAYSIZE(kFalloffs)))
+    brush_.falloff = static_cast<editing::Falloff>(falloff);
+  bool euclidean = brush_.distance == editing::DistanceKind::Euclidean;
+  if (ImGui::Checkbox("straight-line distance", &euclidean))
+    brush_.distance = euclidean ? editing::DistanceKind::Euclidean : editing::DistanceKind::Surface;
+  if (ImGui::Button("Apply to all")) push(Edit{editing::GlobalEdit{brush_}});
+  help("The brush at full weight on every vertex (edge, angle).");
+  ImGui::SameLine();
+  if (ImGui::Button("Relax rest shape")) push(Edit{editing::Relax{}});
+  help("R: the current shape becomes the rest shape (rest lengths and angles).");
+  if (s.undoDepth == 0) ImGui::BeginDisabled();
+  if (ImGui::Button("Undo")) push(Edit{editing::Undo{}});
+  if (s.undoDepth == 0) ImGui::EndDisabled();
+  help("Ctrl+Z");
+  ImGui::SameLine();
+  if (s.redoDepth == 0) ImGui::BeginDisabled();
+  if (ImGui::Button("Redo")) push(Edit{editing::Redo{}});
+  if (s.redoDepth == 0) ImGui::EndDisabled();
+  help("Ctrl+Shift+Z or Ctrl+Y");
+  ImGui::SameLine();
+  ImGui::TextDisabled("%zu / %zu", s.undoDepth, s.redoDepth);
+}
+
+void Window::displayPanel(const Snapshot& s) {
+  ImGui::Checkbox("surface", &view_.surface);
+  ImGui::SameLine();
+  ImGui::Checkbox("wireframe", &view_.wireframe);
+  ImGui::SameLine();
+  ImGui::Checkbox("points", &view_.points);
+  ImGui::Checkbox("refined wireframe", &view_.surfaceWireframe);
+  ImGui::SameLine();
+  ImGui::Checkbox("glyphs", &view_.glyphs);
+  int levels = view_.levels;
+  const int most = affordableLevels(*mesh_, 4);
+  if (ImGui::SliderInt("subdivision", &levels, 0, std::max(most, 0))) {
+    try {
+      builder_->setLevels(levels);
+      view_.levels = levels;
+      refined_.resize(builder_->stencil() ? builder_->stencil()->numRefinedVertices() : 0, 3);
+    } catch (const Error& e) {
+      message(std::string("subdivision: ") + e.what());
+    }
+  }
+  help("Levels of the interpolating Doo-Sabin surface drawn over the control mesh (0: the control mesh).");
+  ImGui::Checkbox("colour by", &view_.colourByProperty);
+  ImGui::SameLine();
+  int property = static_cast<int>(s.scalarProperty);
+  ImGui::SetNextItemWidth(-1.0f);
+  if (ImGui::Combo("##colourproperty", &property, kProperties, IM_ARRAYSIZE(kProperties))) {
+    solver_->setDisplayProperty(static_cast<Property>(property));
+    view_.colourByProperty = true;
+  }
+  int map = static_cast<int>(view_.colorMap);
+  if (ImGui::Combo("colour map", &map, kMaps, IM_ARRAYSIZE(kMaps))) view_.colorMap = static_cast<render::ColorMap>(map);
+  ImGui::Checkbox("automatic range", &view_.autoRange);
+  if (!view_.autoRange) {
+    float range[2] = {static_cast<float>(view_.rangeMin), static_cast<float>(view_.rangeMax)};
+    if (ImGui::InputFloat2("range", range, "%.3g")) {
+      view_.rangeMin = range[0];
+      view_.rangeMax = range[1];
+    }
+  }
+  if (ImGui::Button("Frame model (Home)")) frameModel();
+}
+
+void Window::plotPanel(const Snapshot& s) {
+  (void)s;
+  const float h = 52.0f;
+  plot("kinetic", plots_.kinetic, plots_, h);
+  plot("potential", plots_.potential, plots_, h);
+  plot("total energy", plots_.total, plots_, h);
+  plot("|p| linear momentum", plots_.momentum, plots_, h);
+  plot("|L| angular momentum", plots_.angular, plots_, h);
+}
+
+void Window::statisticsPanel(const Snapshot& s) {
+  ImGui::Text("V / E / F: %d / %d / %d", mesh_->numVertices(), mesh_->numEdges(), mesh_->numFaces());
+  if (builder_->stencil())
+    ImGui::Text("drawn: %d vertices at level %d", builder_->stencil()->numRefinedVertices(), builder_->levels());
+  ImGui::Text("solver: %.3f ms per step (T = %.1f ms)", 1e3 * s.solverSecondsPerStep, 1e3 * s.period);
+  ImGui::Text("display: %.1f frames/s", static_cast<double>(ImGui::GetIO().Framerate));
+  ImGui::Text("simulated / wall time: %.3f", s.simOverWall);
+  ImGui::Text("cycles: %llu, divergences: %llu", static_cast<unsigned long long>(s.cycle),
+              static_cast<unsigned long long>(s.divergences));
+  ImGui::Text("pins: %zu, normal pins: %zu, loads: %zu", s.pins.size(), s.normalPins.size(),
+              s.forces.size() + s.torques.size());
+  if (recorder_) ImGui::Text("recording to %s", recorder_->path().c_str());
+}
+
+void Window::filePanel(const Snapshot& s) {
+  ImGui::TextWrapped("model: %s", source_.c_str());
+  ImGui::InputText("##open", &pathField_);
+  ImGui::SameLine();
+  if (ImGui::Button("Open")) {
+    if (s.unsaved) {
+      pendingOpen_ = pathField_;
+      confirmOpen_ = true;
+    } else {
+      openModel(pathField_);
+    }
+  }
+  help("A mesh file assimp reads (OBJ, PLY, STL, OFF, glTF, FBX, ...), builtin:NAME, or a scene (.json).");
+  ImGui::InputText("##scene", &sceneField_);
+  ImGui::SameLine();
+  if (ImGui::Button("Save scene")) saveScene(sceneField_, false);
+  help("Ctrl+S: the scene with its painted properties, constraints and settings (JSON).");
+  ImGui::InputText("##mesh", &meshField_);
+  ImGui::SameLine();
+  if (ImGui::Button("Save mesh")) saveMesh(meshField_);
+  help("The current shape: .obj .ply .stl .gltf .glb .dae");
+  if (ImGui::Button("Screenshot (F12)")) takeScreenshot("screenshot_" + std::to_string(++screenshotCounter_), true);
+}
+
+void Window::messagePanel() {
+  ImGui::BeginChild("messages", ImVec2(0, 0), true);
+  for (const std::string& m : log_) ImGui::TextWrapped("%s", m.c_str());
+  if (ImGui::GetScrollY() >= ImGui::GetScrollMaxY() - 1.0f) ImGui::SetScrollHereY(1.0f);
+  ImGui::EndChild();
+}
+
+void Window::saveScene(const std::string& path, bool thenQuit) {
+  if (path.empty()) {
+    message("save scene: give a file name");
+    return;
+  }
+  quitAfterSave_ = thenQuit;
+  solver_->runOnSolver([path](Session& session) {
+    try {
+      io::saveScene(session.currentScene(), path);
+      session.apply(MarkSaved{});
+      return "scene saved to " + path;
+    } catch (const Error& e) {
+      return std::string("save scene: ") + e.what();
+    }
+  });
+}
+
+void Window::saveMesh(const std::string& path) {
+  if (path.empty()) {
+    message("save mesh: give a file name");
+    return;
+  }
+  solver_->runOnSolver([path](Session& session) {
+    try {
+      io::saveMesh(session.currentMesh(), path);
+      return "mesh saved to " + path;
+    } catch (const Error& e) {
+      return std::string("save mesh: ") + e.what();
+    }
+  });
+}
+
+void Window::popups(const Snapshot& s) {
+  if (quitAfterSave_ && !s.unsaved) quit_ = true;
+  if (confirmQuit_) {
+    ImGui::OpenPopup("Unsaved edits");
+    confirmQuit_ = false;
+  }
+  if (ImGui::BeginPopupModal("Unsaved edits", nullptr, ImGuiWindowFlags_AlwaysAutoResize)) {
+    ImGui::Text("The model has edits that are not saved.");
+    ImGui::InputText("scene file", &sceneField_);
+    if (ImGui::Button("Save and quit")) {
+      saveScene(sceneField_, true);
+      ImGui::CloseCurrentPopup();
+    }
+    ImGui::SameLine();
+    if (ImGui::Button("Quit without saving")) {
+      quit_ = true;
+      ImGui::CloseCurrentPopup();
+    }
+    ImGui::SameLine();
+    if (ImGui::Button("Cancel")) ImGui::CloseCurrentPopup();
+    ImGui::EndPopup();
+  }
+  if (confirmOpen_) {
+    ImGui::OpenPopup("Discard edits?");
+    confirmOpen_ = false;
+  }
+  if (ImGui::BeginPopupModal("Discard edits?", nullptr, ImGuiWindowFlags_AlwaysAutoResize)) {
+    ImGui::Text("Opening %s discards the unsaved edits of this model.", pendingOpen_.c_str());
+    if (ImGui::Button("Open anyway")) {
+      ImGui::CloseCurrentPopup();
+      openModel(pendingOpen_);
+    }
+    ImGui::SameLine();
+    if (ImGui::Button("Cancel")) ImGui::CloseCurrentPopup();
+    ImGui::EndPopup();
+  }
+}
+
+void Window::overlays(const Snapshot& s) {
+  ImDrawList* draw = ImGui::GetForegroundDrawList();
+  const float k = static_cast<float>(1.0 / pixelScale_);
+  if (adjust_ != Adjust::None) {
+    const ImVec2 centre(static_cast<float>(adjustCentreX_) * k, static_cast<float>(adjustCentreY_) * k);
+    const float r = adjust_ == Adjust::Radius
+                        ? static_cast<float>(brush_.radius / worldPerPixel(camera_, viewHeight_, camera_.target)) * k
+                        : static_cast<float>(brush_.strength * 200.0);
+    draw->AddCircle(centre, r, IM_COL32(255, 255, 255, 230), 64, 2.0f);
+    draw->AddCircle(centre, r + 1.5f, IM_COL32(30, 30, 40, 200), 64, 1.0f);
+    char text[64];
+    if (adjust_ == Adjust::Radius)
+      std::snprintf(text, sizeof text, "radius %.3g", brush_.radius);
+    else
+      std::snprintf(text, sizeof text, "strength %.2f", brush_.strength);
+    draw->AddText(ImVec2(centre.x + 6, centre.y - 8), IM_COL32(20, 20, 30, 255), text);
+  }
+  if (gesture_ == Gesture::Tool && (tool_ == Tool::Force || tool_ == Tool::Torque) && toolVertex_ >= 0 &&
+      toolVertex_ < s.position.rows()) {
+    const auto a = projectToPixel(camera_, viewWidth_, viewHeight_, toolAnchor_);
+    const auto b = projectToPixel(camera_, viewWidth_, viewHeight_, loadEnd_);
+    if (a && b) {
+      const ImU32 colour = tool_ == Tool::Force ? IM_COL32(255, 140, 26, 255) : IM_COL32(155, 79, 209, 255);
+      const ImVec2 pa(static_cast<float>(a->x()) * k, static_cast<float>(a->y()) * k);
+      const ImVec2 pb(static_cast<float>(b->x()) * k, static_cast<float>(b->y()) * k);
+      draw->AddLine(pa, pb, colour, 3.0f);
+      draw->AddCircleFilled(pb, 5.0f, colour);
+      const Vec3 drag = loadEnd_ - toolAnchor_;
+      char text[64];
+      std::snprintf(text, sizeof text, tool_ == Tool::Force ? "%.3g N" : "%.3g N m",
+                    (tool_ == Tool::Force ? forceScale_ : torqueScale_) * drag.norm());
+      draw->AddText(ImVec2(pb.x + 8, pb.y - 8), IM_COL32(20, 20, 30, 255), text);
+    }
+  }
+}
+
+}  // namespace zsculpt::app

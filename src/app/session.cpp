@@ -1,0 +1,568 @@
+#include "zsculpt/app/session.h"
+
+#include <algorithm>
+#include <cmath>
+#include <cstring>
+#include <limits>
+#include <sstream>
+
+#include "zsculpt/constraints/constraints.h"
+#include "zsculpt/core/errors.h"
+#include "zsculpt/editing/scene_edits.h"
+#include "zsculpt/io/mesh_io.h"
+#include "zsculpt/physics/matrices.h"
+#include "zsculpt/render/frame.h"
+
+namespace zsculpt::app {
+
+namespace {
+
+template <class... Ts>
+struct Overloaded : Ts... {
+  using Ts::operator()...;
+};
+template <class... Ts>
+Overloaded(Ts...) -> Overloaded<Ts...>;
+
+Scheme toScheme(io::SimulationScheme s) { return schemeFromName(io::schemeName(s)); }
+io::SimulationScheme toSceneScheme(Scheme s) { return io::schemeFromName(schemeName(s)); }
+
+// FNV-1a over raw bytes: states equal bit for bit hash equal.
+void fnv(std::uint64_t& h, const void* data, size_t bytes) {
+  const auto* p = static_cast<const unsigned char*>(data);
+  for (size_t i = 0; i < bytes; ++i) {
+    h ^= p[i];
+    h *= 1099511628211ull;
+  }
+}
+
+std::string vertexText(Index v) { return "vertex " + std::to_string(v); }
+
+}  // namespace
+
+std::uint64_t stateHash(const State& state) {
+  std::uint64_t h = 1469598103934665603ull;
+  fnv(h, state.position.data(), sizeof(double) * static_cast<size_t>(state.position.size()));
+  fnv(h, state.velocity.data(), sizeof(double) * static_cast<size_t>(state.velocity.size()));
+  fnv(h, &state.time, sizeof(double));
+  return h;
+}
+
+std::uint64_t meshHash(const Mesh& mesh) {
+  std::uint64_t h = 1469598103934665603ull;
+  const Points& p = mesh.positions();
+  fnv(h, p.data(), sizeof(double) * static_cast<size_t>(p.size()));
+  const CsrIndex& f = mesh.faces();
+  fnv(h, f.offsets.data(), sizeof(Index) * f.offsets.size());
+  fnv(h, f.indices.data(), sizeof(Index) * f.indices.size());
+  for (const auto& e : mesh.edges()) fnv(h, e.data(), sizeof(Index) * 2);
+  return h;
+}
+
+double resolvePeriod(const io::SceneDescription& scene, const Model& model) {
+  const double tMax = criticalPeriod(SystemMatrices(model));
+  double period = 0.0;
+  if (scene.simulation.dt)
+    period = *scene.simulation.dt;
+  else
+    period = scene.simulation.dtRatio.value_or(0.5) * tMax;
+  // No stiffness at all (a free particle cloud): any step is stable; 10 ms as the CLI does.
+  if (!std::isfinite(period)) period = 0.01;
+  return period;
+}
+
+SessionSetup sessionSetupFromScene(io::SceneDescription scene) {
+  SessionSetup setup;
+  setup.mesh = io::loadMeshSource(scene.mesh);
+  const Model model = io::buildModel(scene, setup.mesh);
+  setup.scheme = toScheme(scene.simulation.scheme);
+  setup.period = resolvePeriod(scene, model);
+  setup.scene = std::move(scene);
+  return setup;
+}
+
+SessionSetup loadSessionSetup(const std::string& source) {
+  io::SceneDescription scene;
+  if (io::isSceneFileName(source))
+    scene = io::loadScene(source);
+  else
+    scene.mesh = source;
+  return sessionSetupFromScene(std::move(scene));
+}
+
+// ---- construction ----------------------------------------------------------------------------
+
+namespace {
+
+std::unique_ptr<Simulation> makeSimulation(const SessionSetup& setup) {
+  if (!(setup.period > 0.0) || !std::isfinite(setup.period))
+    throw InvalidInputError("time step: must be a positive number of seconds");
+  SimulationSettings settings;
+  settings.scheme = setup.scheme;
+  settings.period = setup.period;
+  return std::make_unique<Simulation>(io::buildModel(setup.scene, setup.mesh), settings);
+}
+
+}  // namespace
+
+Session::Session(SessionSetup setup)
+    : setup_(std::move(setup)),
+      sim_(makeSimulation(setup_)),
+      editor_(sim_->model().mesh, sim_->model().angles),
+      schedule_(editing::scheduleFromScene(setup_.scene.edits)) {
+  const Mesh& mesh = sim_->model().mesh;
+  if (setup_.initial) {
+    initial_ = *setup_.initial;
+  } else {
+    initial_ = State::atRest(mesh);
+    const double amplitude = setup_.scene.simulation.perturb;
+    if (amplitude > 0.0) {
+      Points kick;
+      randomVelocity(sim_->model().properties.mass, amplitude,
+                     static_cast<unsigned>(setup_.scene.simulation.seed), kick);
+      initial_.velocity += kick;
+    }
+  }
+  sim_->setState(initial_);  // checks size and finiteness
+
+  for (const io::TimedLoad& f : setup_.scene.forces) {
+    const TimedLoad load{f.vertex, f.value, f.start, f.end};
+    sim_->addForce(load);
+    baseForces_.push_back(load);
+  }
+  for (const io::TimedLoad& t : setup_.scene.torques) {
+    const TimedLoad load{t.vertex, t.value, t.start, t.end};
+    sim_->addTorque(load);
+    baseTorques_.push_back(load);
+  }
+  forces_ = baseForces_;
+  torques_ = baseTorques_;
+
+  addSceneConstraints();
+
+  checkpoints_[0] = initial_;
+  checkpoints_[1] = initial_;
+  const BoundingBox box = mesh.boundingBox();
+  sizeLimit_ = kDivergenceScale *
+               std::max({box.diagonal(), box.min.cwiseAbs().maxCoeff(), box.max.cwiseAbs().maxCoeff(), 1.0});
+  region_ = editing::BrushRegion(mesh);
+  refreshLimits();
+}
+
+Session::~Session() = default;
+
+void Session::addSceneConstraints() {
+  const Index n = sim_->model().mesh.numVertices();
+  for (const io::ConstraintSpec& c : setup_.scene.constraints) {
+    if (c.vertex < 0 || c.vertex >= n)
+      throw InvalidInputError("constraint: " + vertexText(c.vertex) + " is out of range");
+    if (c.type == io::ConstraintType::Position)
+      sim_->addPositionConstraint(c.vertex, c.target);
+    else
+      sim_->addNormalConstraint(c.vertex, c.normal);
+  }
+  for (std::string& w : sim_->takeWarnings()) notices_.push_back(std::move(w));
+}
+
+void Session::endDrag() {
+  if (dragVertex_ >= 0 && dragOwnsConstraint_) sim_->removeConstraint(dragId_);
+  dragVertex_ = -1;
+  dragId_ = -1;
+  dragOwnsConstraint_ = false;
+}
+
+std::vector<Index> Session::pins() const {
+  std::vector<Index> out;
+  for (const Constraint& c : sim_->constraints().constraints())
+    if (c.kind == ConstraintKind::Position && !isDragConstraint(c)) out.push_back(c.vertex);
+  return out;
+}
+
+// ---- commands -------------------------------------------------------------------------------
+
+void Session::refreshLimits() {
+  const SystemMatrices& system = sim_->stepper().system();
+  tMax_ = criticalPeriod(system);
+  const double maxDiagonal = system.omega2().size() > 0 ? system.omega2().diagonal().maxCoeff() : 0.0;
+  stableLimit_ = maxDiagonal > 0.0 ? stablePeriodLimit(sim_->stepper().scheme(), 2.0 * maxDiagonal)
+                                   : std::numeric_limits<double>::infinity();
+  scalarStale_ = true;
+}
+
+void Session::rebuildSimulation(Scheme scheme, double period) {
+  if (!(period > 0.0) || !std::isfinite(period))
+    throw InvalidInputError("time step: must be a positive number of seconds, got " +
+                            std::to_string(period));
+  SimulationSettings settings;
+  settings.scheme = scheme;
+  settings.period = period;
+  // Built aside first: if it throws (e.g. the exact scheme on too large a model) nothing
+  // changes.
+  auto next = std::make_unique<Simulation>(sim_->model(), settings);
+  next->setState(sim_->state());
+  // The constraints carry over (with new ids; the drag's is looked up again).
+  Index dragId = -1;
+  for (const Constraint& c : sim_->constraints().constraints()) {
+    const Index id = c.kind == ConstraintKind::Position ? next->addPositionConstraint(c.vertex, c.value)
+                                                        : next->addNormalConstraint(c.vertex, c.value);
+    if (c.id == dragId_) dragId = id;
+  }
+  next->takeWarnings();
+  sim_ = std::move(next);
+  dragId_ = dragId;
+  reloadLoads();
+}
+
+void Session::reloadLoads() {
+  sim_->clearLoads();
+  for (const TimedLoad& f : forces_) sim_->addForce(f);
+  for (const TimedLoad& t : torques_) sim_->addTorque(t);
+}
+
+bool Session::takeStepRequest() {
+  const bool r = stepRequest_;
+  stepRequest_ = false;
+  return r;
+}
+
+void Session::apply(const Command& command) {
+  const Index n = sim_->model().mesh.numVertices();
+  auto checkVertex = [n](Index v, const char* what) {
+    if (v < 0 || v >= n)
+      throw InvalidInputError(std::string(what) + ": " + vertexText(v) +
+                              " is out of range [0, " + std::to_string(n) + ")");
+  };
+  auto checkFinite = [](const Vec3& v, const char* what) {
+    if (!v.allFinite()) throw InvalidInputError(std::string(what) + ": not finite");
+  };
+  const double now = sim_->time();
+  std::visit(
+      Overloaded{
+          [&](const Play&) { running_ = true; },
+          [&](const Pause&) { running_ = false; },
+          [&](const StepOnce&) { stepRequest_ = true; },
+          [&](const Reset&) {
+            sim_->setState(initial_);
+            forces_ = baseForces_;
+            torques_ = baseTorques_;
+            reloadLoads();
+            endDrag();
+            sim_->clearConstraints();
+            addSceneConstraints();
+            checkpoints_[0] = initial_;
+            checkpoints_[1] = initial_;
+          },
+          [&](const SetTimeStep& s) {
+            if (s.scheme == sim_->stepper().scheme() && s.period == sim_->period()) return;
+            rebuildSimulation(s.scheme, s.period);
+            refreshLimits();
+            unsaved_ = true;
+          },
+          [&](const SetGravity& g) {
+            checkFinite(g.gravity, "gravity");
+            sim_->mutableProperties().gravity = g.gravity;
+            sim_->propertiesChanged({});
+            unsaved_ = true;
+          },
+          [&](const SetStiffnessCap& c) {
+            if (!(c.cap > 0.0))
+              throw InvalidInputError("stiffness cap: must be positive (infinity: none)");
+            sim_->mutableProperties().stiffnessCap = c.cap;
+            sim_->allPropertiesChanged();
+            refreshLimits();
+            unsaved_ = true;
+          },
+          [&](const Edit& e) {
+            const editing::EditTarget target{sim_->model().mesh, sim_->model().angles,
+                                             sim_->mutableProperties()};
+            editing::EditResult result;
+            if (std::holds_alternative<editing::Undo>(e.command))
+              result = editor_.undo(target, sim_->state());
+            else if (std::holds_alternative<editing::Redo>(e.command))
+              result = editor_.redo(target, sim_->state());
+            else
+              result = editor_.apply(target, sim_->state(), e.command);
+            if (!result.changed) return;
+            if (result.wholeModel)
+              sim_->allPropertiesChanged();
+            else
+              sim_->propertiesChanged(result.matrixRows);
+            refreshLimits();
+            unsaved_ = true;
+          },
+          [&](const AddLoad& l) {
+            const char* what = l.kind == LoadKind::Force ? "force" : "torque";
+            if (!(l.duration > 0.0))
+              throw InvalidInputError(std::string(what) + ": duration must be positive");
+            // Everything is checked before anything changes (a refused command is not
+            // recorded, so it must leave no trace).
+            checkVertex(l.vertex, what);
+            checkFinite(l.value, what);
+            if (l.kind == LoadKind::Torque && sim_->model().mesh.valence(l.vertex) == 0)
+              throw InvalidInputError("torque: " + vertexText(l.vertex) +
+                                      " has no neighbours to carry a torque");
+            const TimedLoad load{l.vertex, l.value, now, now + l.duration};
+            // Simulation validates (vertex, finiteness, a torque needs neighbours) and
+            // appends; expired loads are dropped first so the lists stay short.
+            auto expired = [now](const TimedLoad& t) { return t.end <= now; };
+            std::erase_if(forces_, expired);
+            std::erase_if(torques_, expired);
+            reloadLoads();
+            if (l.kind == LoadKind::Force) {
+              sim_->addForce(load);
+              forces_.push_back(load);
+            } else {
+              sim_->addTorque(load);
+              torques_.push_back(load);
+            }
+          },
+          [&](const ClearLoads&) {
+            forces_.clear();
+            torques_.clear();
+            sim_->clearLoads();
+          },
+          [&](const Pin& p) {
+            checkVertex(p.vertex, "pin");
+            if (p.target) checkFinite(*p.target, "pin target");
+            const auto id = sim_->constraints().find(ConstraintKind::Position, p.vertex);
+            if (id && !(dragOwnsConstraint_ && *id == dragId_)) {
+              if (p.target) sim_->setConstraintTarget(*id, *p.target);
+              return;
+            }
+            if (id) {
+              // Pinning the dragged vertex: its drag constraint becomes the pin.
+              dragOwnsConstraint_ = false;
+              if (p.target) sim_->setConstraintTarget(*id, *p.target);
+              return;
+            }
+            sim_->addPositionConstraint(p.vertex, p.target);
+          },
+          [&](const Unpin& p) {
+            checkVertex(p.vertex, "unpin");
+            const auto id = sim_->constraints().find(ConstraintKind::Position, p.vertex);
+            if (!id || (dragOwnsConstraint_ && *id == dragId_)) return;
+            if (p.vertex == dragVertex_) {
+              dragOwnsConstraint_ = true;  // the drag keeps holding it until released
+              return;
+            }
+            sim_->removeConstraint(*id);
+          },
+          [&](const PinBrush& p) {
+            region_.compute(sim_->model().mesh, sim_->state().position, p.centre, p.radius,
+                            editing::Falloff::Constant, editing::DistanceKind::Surface);
+            for (Index v : region_.vertices()) {
+              if (v == dragVertex_) continue;
+              const auto id = sim_->constraints().find(ConstraintKind::Position, v);
+              if (p.pin && !id)
+                sim_->addPositionConstraint(v, std::nullopt);
+              else if (!p.pin && id)
+                sim_->removeConstraint(*id);
+            }
+          },
+          [&](const UnpinAll&) {
+            const bool dragging = dragVertex_ >= 0;
+            const Index vertex = dragVertex_;
+            const Vec3 target = dragTarget_;
+            dragVertex_ = -1;
+            sim_->clearConstraints();
+            if (dragging) {
+              dragVertex_ = vertex;
+              dragId_ = sim_->addPositionConstraint(vertex, target);
+              dragOwnsConstraint_ = true;
+            }
+          },
+          [&](const PinNormal& p) {
+            checkVertex(p.vertex, "normal pin");
+            if (p.normal) checkFinite(*p.normal, "normal pin");
+            const auto id = sim_->constraints().find(ConstraintKind::Normal, p.vertex);
+            if (id) {
+              if (p.normal) sim_->setConstraintNormal(*id, *p.normal);
+              return;
+            }
+            if (!p.normal && !bestPlaneNormal(sim_->model().mesh, sim_->state().position, p.vertex))
+              throw InvalidInputError("normal pin: " + vertexText(p.vertex) +
+                                      " has no normal (too few or collinear neighbours)");
+            sim_->addNormalConstraint(p.vertex, p.normal);
+          },
+          [&](const UnpinNormal& p) {
+            checkVertex(p.vertex, "unpin normal");
+            if (const auto id = sim_->constraints().find(ConstraintKind::Normal, p.vertex))
+              sim_->removeConstraint(*id);
+          },
+          [&](const DragStart& d) {
+            checkVertex(d.vertex, "drag");
+            checkFinite(d.target, "drag target");
+            endDrag();
+            // A pinned vertex is dragged by its pin (which stays where it is released).
+            if (const auto id = sim_->constraints().find(ConstraintKind::Position, d.vertex)) {
+              dragId_ = *id;
+              dragOwnsConstraint_ = false;
+              sim_->setConstraintTarget(dragId_, d.target);
+            } else {
+              dragId_ = sim_->addPositionConstraint(d.vertex, d.target);
+              dragOwnsConstraint_ = true;
+            }
+            dragVertex_ = d.vertex;
+            dragTarget_ = d.target;
+          },
+          [&](const DragMove& d) {
+            checkFinite(d.target, "drag target");
+            if (dragVertex_ < 0) return;
+            dragTarget_ = d.target;
+            sim_->setConstraintTarget(dragId_, d.target);
+          },
+          [&](const DragEnd&) { endDrag(); },
+          [&](const MarkSaved&) { unsaved_ = false; },
+      },
+      command);
+}
+
+// ---- the cycle --------------------------------------------------------------------------------
+
+void Session::takeCheckpoint() {
+  // Overwrite the older slot: the other one stays at least one interval old.
+  const int slot = 1 - newestCheckpoint_;
+  checkpoints_[slot].position = sim_->state().position;
+  checkpoints_[slot].velocity = sim_->state().velocity;
+  checkpoints_[slot].time = sim_->state().time;
+  checkpointCycle_[slot] = cycle_;
+  newestCheckpoint_ = slot;
+}
+
+bool Session::blownUp() const {
+  const State& s = sim_->state();
+  return !(s.position.cwiseAbs().maxCoeff() <= sizeLimit_);
+}
+
+Session::Outcome Session::advance() {
+  if (cycle_ % kCheckpointInterval == 0) takeCheckpoint();
+  const double now = sim_->time();
+  // Timed edits of the scene that are due (a millionth of a period absorbs the rounding of
+  // the accumulated time, as the command line does).
+  for (const editing::TimedEdit& e : schedule_.due(now, 1e-6 * sim_->period())) {
+    try {
+      apply(Edit{e.command});
+    } catch (const InvalidInputError& error) {
+      notices_.push_back(std::string("scene edit at t = ") + std::to_string(e.time) +
+                         " s: " + error.what());
+    }
+  }
+  bool diverged = false;
+  std::string reason;
+  try {
+    sim_->step();
+  } catch (const DivergenceError& e) {
+    diverged = true;
+    reason = "the state became non-finite";
+  }
+  ++cycle_;
+  for (std::string& w : sim_->takeWarnings()) notices_.push_back(std::move(w));
+  if (!diverged) {
+    if (blownUp()) {
+      diverged = true;
+      reason = "a vertex flew beyond " + std::to_string(static_cast<long long>(kDivergenceScale)) +
+               " model sizes";
+    }
+  }
+  if (!diverged) return Outcome::Stepped;
+
+  // Roll back to the older checkpoint: the newer one may already be on its way out.
+  const double at = sim_->time();
+  const State& good = checkpoints_[1 - newestCheckpoint_];
+  sim_->setState(good);
+  checkpoints_[newestCheckpoint_] = good;
+  endDrag();
+  running_ = false;
+  ++divergences_;
+  std::ostringstream msg;
+  msg.precision(4);
+  msg << "the simulation diverged at t = " << at << " s (" << reason
+      << "); rolled back to t = " << good.time
+      << " s and paused. Lower the time step (Simulation panel) or the stiffness.";
+  divergence_ = Divergence{cycle_, at, good.time, msg.str()};
+  notices_.push_back(msg.str());
+  return Outcome::Diverged;
+}
+
+void Session::takeNotices(std::vector<std::string>& out) {
+  for (std::string& n : notices_) out.push_back(std::move(n));
+  notices_.clear();
+}
+
+// ---- outputs ----------------------------------------------------------------------------------
+
+void Session::fill(Snapshot& out, Property scalarProperty) {
+  const State& s = sim_->state();
+  const Model& model = sim_->model();
+  out.cycle = cycle_;
+  out.time = s.time;
+  out.position = s.position;
+  out.velocity = s.velocity;
+  if (scalarStale_ || scalarProperty != scalarProperty_) {
+    render::propertyAsVertexScalar(model.mesh, model.angles, model.properties, scalarProperty,
+                                   scalar_);
+    scalarProperty_ = scalarProperty;
+    scalarStale_ = false;
+  }
+  out.scalarProperty = scalarProperty_;
+  out.scalar = scalar_;
+  out.diagnostics = sim_->diagnostics();
+  out.pins.clear();
+  out.normalPins.clear();
+  for (const Constraint& c : sim_->constraints().constraints()) {
+    if (isDragConstraint(c)) continue;
+    if (c.kind == ConstraintKind::Position)
+      out.pins.push_back(c.vertex);
+    else
+      out.normalPins.emplace_back(c.vertex, c.value);
+  }
+  out.forces.clear();
+  for (const TimedLoad& f : forces_)
+    if (f.activeAt(s.time)) out.forces.emplace_back(f.vertex, f.value);
+  out.torques.clear();
+  for (const TimedLoad& t : torques_)
+    if (t.activeAt(s.time)) out.torques.emplace_back(t.vertex, t.value);
+  out.dragVertex = dragVertex_;
+  out.dragTarget = dragTarget_;
+  out.running = running_;
+  out.scheme = sim_->stepper().scheme();
+  out.period = sim_->period();
+  out.tMax = tMax_;
+  out.stableLimit = stableLimit_;
+  out.gravity = model.properties.gravity;
+  out.stiffnessCap = model.properties.stiffnessCap;
+  out.meanDamping = model.properties.damping.size() > 0 ? model.properties.damping.mean() : 0.0;
+  out.undoDepth = editor_.undoDepth();
+  out.redoDepth = editor_.redoDepth();
+  out.unsaved = unsaved_;
+  out.divergences = divergences_;
+}
+
+io::SceneDescription Session::currentScene() const {
+  io::SceneDescription scene = setup_.scene;
+  const Model& model = sim_->model();
+  io::recordProperties(scene, model);
+  scene.constraints.clear();
+  for (const Constraint& c : sim_->constraints().constraints()) {
+    if (isDragConstraint(c)) continue;
+    if (c.kind == ConstraintKind::Position)
+      scene.constraints.push_back({io::ConstraintType::Position, c.vertex, c.value, {}});
+    else
+      scene.constraints.push_back({io::ConstraintType::Normal, c.vertex, {}, c.value});
+  }
+  // Timed edits already applied live on in the painted arrays; keep the ones still to come.
+  const double now = sim_->time();
+  std::erase_if(scene.edits, [now](const io::SceneEdit& e) { return e.time <= now; });
+  scene.simulation.scheme = toSceneScheme(sim_->stepper().scheme());
+  scene.simulation.dt = sim_->period();
+  scene.simulation.dtRatio.reset();
+  return scene;
+}
+
+Mesh Session::currentMesh() const {
+  Mesh mesh = setup_.mesh;
+  mesh.setPositions(sim_->state().position);
+  return mesh;
+}
+
+}  // namespace zsculpt::app

@@ -1,0 +1,111 @@
+#include "zsculpt/app/view.h"
+
+#include <algorithm>
+#include <cstdio>
+
+#include "zsculpt/core/errors.h"
+
+namespace zsculpt::app {
+
+namespace {
+
+const char* unitOf(Property p) {
+  switch (p) {
+    case Property::Mass: return "kg";
+    case Property::Damping: return "kg/s";
+    case Property::Stiffness: return "N/m";
+    case Property::AngularStiffness: return "N m/rad^2";
+    case Property::Rigidity: return "";
+    case Property::RestLength: return "m";
+    case Property::RestAngle: return "rad";
+  }
+  return "";
+}
+
+}  // namespace
+
+int affordableLevels(const Mesh& mesh, int wanted, Index maxRefinedVertices) {
+  // Doo-Sabin: one vertex per face corner, so level 1 has sum of face sizes vertices and
+  // every further level about four times as many (all faces become quads or keep their
+  // size); estimate without building anything.
+  double count = static_cast<double>(mesh.faces().indices.size());
+  if (count == 0) count = 2.0 * mesh.numEdges();  // curves: Chaikin doubles the points
+  int levels = 0;
+  while (levels < wanted && count <= static_cast<double>(maxRefinedVertices)) {
+    ++levels;
+    count *= 4.0;
+  }
+  return levels;
+}
+
+void applyCameraSettings(const io::CameraSettings& s, render::Camera& camera) {
+  if (s.target) camera.target = *s.target;
+  if (s.distance) camera.distance = *s.distance;
+  if (s.yaw) camera.yawDegrees = *s.yaw;
+  if (s.pitch) camera.pitchDegrees = std::clamp(*s.pitch, -89.0, 89.0);
+  if (s.fov) camera.fovYDegrees = *s.fov;
+}
+
+FrameBuilder::FrameBuilder(const Mesh& mesh) : mesh_(mesh) {}
+
+void FrameBuilder::setLevels(int levels) {
+  levels = std::clamp(levels, 0, 10);
+  if (levels == levels_) return;
+  if (levels == 0) {
+    stencil_.reset();
+  } else {
+    SubdivisionOptions options;
+    options.levels = levels;
+    stencil_ = std::make_unique<SubdivisionStencil>(mesh_, options);
+  }
+  levels_ = levels;
+  ++topologyVersion_;
+}
+
+render::Frame& FrameBuilder::build(const Snapshot& snapshot, const ViewSettings& view,
+                                   const render::Camera& camera) {
+  if (levels_ < 0) setLevels(view.levels);
+  render::Frame& f = frame_;
+  f.mesh = &mesh_;
+  f.stencil = stencil_.get();
+  f.positions = snapshot.position.rows() == mesh_.numVertices() ? &snapshot.position : nullptr;
+  f.topologyVersion = topologyVersion_;
+  f.display.surface = view.surface;
+  f.display.controlWireframe = view.wireframe;
+  f.display.surfaceWireframe = view.surfaceWireframe;
+  f.display.controlPoints = view.points;
+  f.display.glyphs = view.glyphs;
+  f.display.legend = view.colourByProperty;
+  if (view.colourByProperty && snapshot.scalar.size() == mesh_.numVertices()) {
+    f.scalar.values = &snapshot.scalar;
+    const char* unit = unitOf(snapshot.scalarProperty);
+    f.scalar.name = std::string(propertyName(snapshot.scalarProperty));
+    if (*unit != '\0') {
+      f.scalar.name += " (";
+      f.scalar.name += unit;
+      f.scalar.name += ")";
+    }
+    f.scalar.autoRange = view.autoRange;
+    f.scalar.min = view.rangeMin;
+    f.scalar.max = view.rangeMax;
+    f.scalar.map = view.colorMap;
+  } else {
+    f.scalar.values = nullptr;
+  }
+  f.pins.assign(snapshot.pins.begin(), snapshot.pins.end());
+  f.normalPins.clear();
+  for (const auto& [v, n] : snapshot.normalPins) f.normalPins.push_back({v, n});
+  f.forces.clear();
+  for (const auto& [v, value] : snapshot.forces) f.forces.push_back({v, value});
+  f.torques.clear();
+  for (const auto& [v, value] : snapshot.torques) f.torques.push_back({v, value});
+  f.markers.clear();
+  if (snapshot.dragVertex >= 0) f.markers.push_back({snapshot.dragVertex, render::Color::hex(0xffd400)});
+  char caption[64];
+  std::snprintf(caption, sizeof caption, "t = %.2f s", snapshot.time);
+  f.caption = caption;
+  f.camera = camera;
+  return f;
+}
+
+}  // namespace zsculpt::app

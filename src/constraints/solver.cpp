@@ -1,0 +1,450 @@
+#include "zsculpt/constraints/solver.h"
+
+#include <Eigen/Eigenvalues>
+#include <algorithm>
+#include <cmath>
+#include <cstdlib>
+#include <numbers>
+
+#include "zsculpt/core/errors.h"
+
+namespace zsculpt {
+
+namespace {
+
+// Entry (row, col) of a compressed row-major matrix (zero outside its pattern).
+double entry(const SparseRowMatrix& m, Index row, Index col) {
+  const Index* begin = m.innerIndexPtr() + m.outerIndexPtr()[row];
+  const Index* end = m.innerIndexPtr() + m.outerIndexPtr()[row + 1];
+  const Index* it = std::lower_bound(begin, end, col);
+  return (it != end && *it == col) ? m.valuePtr()[it - m.innerIndexPtr()] : 0.0;
+}
+
+Mat3 pseudoInverse(const Mat3& symmetric) {
+  Eigen::SelfAdjointEigenSolver<Mat3> eig(symmetric);
+  const double largest = eig.eigenvalues().cwiseAbs().maxCoeff();
+  Mat3 out = Mat3::Zero();
+  for (int k = 0; k < 3; ++k) {
+    const double value = eig.eigenvalues()[k];
+    if (std::abs(value) > 1e-12 * largest) {
+      const Vec3 axis = eig.eigenvectors().col(k);
+      out += (1.0 / value) * axis * axis.transpose();
+    }
+  }
+  return out;
+}
+
+Mat3 armInertia(const Vec3& arm) {
+  return arm.squaredNorm() * Mat3::Identity() - arm * arm.transpose();
+}
+
+}  // namespace
+
+// ---- StepResponse ---------------------------------------------------------------------------
+
+void StepResponse::buildElastic(const Stepper& stepper, const Model& model,
+                                std::span<const double> share, std::span<const Index> support) {
+  const Index s = static_cast<Index>(support.size());
+  elastic_.setZero(s, s);
+  centreShift_.setZero(s);
+  anchorPosition_.setZero(s, 3);
+  anchorForce_.setZero(s, 3);
+  start_.setZero(s, 3);
+  elasticWork_.setZero(s, 3);
+  chi_.assign(static_cast<size_t>(s), 0.0);
+  totalMass_ = model.properties.mass.sum();
+  const double t = stepper.period(), t2 = t * t;
+  const SystemMatrices& system = stepper.system();
+  const SparseRowMatrix& o2 = system.omega2();
+  const VectorX& g = system.dampingCoefficient();
+  const VectorX& inverseMass = system.inverseMass();
+  const PhysicalProperties& p = model.properties;
+  auto sigma = [&](Index v) { return share.empty() ? 1.0 : share[static_cast<size_t>(v)]; };
+  // Omega^4_jl = sum_q Omega^2_jq Omega^2_ql (paper scheme's two-ring term).
+  auto omega4 = [&](Index j, Index l) {
+    double sum = 0.0;
+    for (Index k = o2.outerIndexPtr()[j]; k < o2.outerIndexPtr()[j + 1]; ++k)
+      sum += o2.valuePtr()[k] * entry(o2, o2.innerIndexPtr()[k], l);
+    return sum;
+  };
+  // Implicit Euler's (M + h D + h^2 K) restricted to its diagonal: a first-order model.
+  auto implicitFactor = [&](Index l) {
+    const double m = p.mass[l];
+    return m / (m + t * p.damping[l] + t2 * entry(system.stiffness(), l, l));
+  };
+  for (Index b = 0; b < s; ++b) {
+    const Index l = support[static_cast<size_t>(b)];
+    const double scale = sigma(l) * inverseMass[l];
+    for (Index a = 0; a < s; ++a) {
+      const Index j = support[static_cast<size_t>(a)];
+      const double delta = (a == b) ? 1.0 : 0.0;
+      double c = 0.0;
+      switch (stepper.scheme()) {
+        case Scheme::Default:
+          // r' = r + T v + T^2/2 Phi a, Phi = 1 - T^2 Omega^2 / 12 (the damping half step
+          // acts on v before the kick, not on the kick).
+          c = 0.5 * t2 * (delta - t2 / 12.0 * entry(o2, j, l));
+          break;
+        case Scheme::Paper:
+        case Scheme::Exact:  // the Taylor H of equation 3 approximates the exact one
+          c = 0.5 * t2 * delta - t2 * t2 / 24.0 * entry(o2, j, l) +
+                t2 * t2 * t2 / 720.0 * omega4(j, l);
+          break;
+        case Scheme::SymplecticEuler: c = delta * t2 * std::exp(-2.0 * g[j] * t); break;
+        case Scheme::ImplicitEuler: c = delta * t2 * implicitFactor(l); break;
+      }
+      elastic_(a, b) = c * scale;
+    }
+    // sum_j mu_j C_jl: the Laplacian terms cancel (K's columns sum to zero).
+    double shift = 0.5 * t2;
+    if (stepper.scheme() == Scheme::SymplecticEuler) shift = t2 * std::exp(-2.0 * g[l] * t);
+    if (stepper.scheme() == Scheme::ImplicitEuler) shift = t2 * implicitFactor(l);
+    centreShift_[b] = shift * sigma(l);
+  }
+}
+
+void StepResponse::setRigid(const Rigid& rigid, const Points& startPosition,
+                            std::span<const double> rigidShare) {
+  rigidActive_ = true;
+  rigid_ = rigid;
+  start_ = startPosition;
+  std::copy(rigidShare.begin(), rigidShare.end(), chi_.begin());
+}
+
+void StepResponse::anchor(const Points& elasticPosition, const Vec3& elasticCentre,
+                          const Points& force) {
+  anchorPosition_ = elasticPosition;
+  anchorCentre_ = elasticCentre;
+  anchorForce_ = force;
+}
+
+void StepResponse::rigidMotion(const Points& force, Vec3& centre, RigidDrift& drift) const {
+  // The same sums, in the same order, as the cycle's (Simulation::runTrial).
+  Vec3 f = rigid_.force, torque = rigid_.torque, shift = Vec3::Zero();
+  for (Index l = 0; l < force.rows(); ++l) {
+    const Vec3 share = chi_[static_cast<size_t>(l)] * force.row(l).transpose();
+    f += share;
+    torque += (start_.row(l).transpose() - rigid_.start.centre).cross(share);
+    shift += centreShift_[l] * (force.row(l) - anchorForce_.row(l)).transpose();
+  }
+  centre = anchorCentre_ + shift / totalMass_;
+  drift = rigidDrift(rigid_.start, rigid_.momentum, f, torque, rigid_.period, rigid_.damping);
+}
+
+void StepResponse::predict(const Points& force, Points& position) const {
+  // r_e = r_e0 + C (f - f0), per coordinate column.
+  elasticWork_ = force - anchorForce_;
+  position.noalias() = elastic_ * elasticWork_;
+  position += anchorPosition_;
+  if (!rigidActive_) return;
+  Vec3 centre;
+  RigidDrift drift;
+  rigidMotion(force, centre, drift);
+  applyRigidMotion(centre, drift.translation, drift.rotation, position);
+}
+
+// ---- ConstraintSolver -----------------------------------------------------------------------
+
+void ConstraintSolver::setUp(const Mesh& mesh, const ConstraintSet& constraints) {
+  localOf_.assign(static_cast<size_t>(mesh.numVertices()), -1);
+  support_.clear();
+  std::vector<Index> fit;
+  for (const Constraint& c : constraints.constraints()) {
+    if (c.kind == ConstraintKind::Position) {
+      support_.push_back(c.vertex);
+    } else {
+      normalFitVertices(mesh, c.vertex, fit);
+      support_.insert(support_.end(), fit.begin(), fit.end());
+    }
+  }
+  std::sort(support_.begin(), support_.end());
+  support_.erase(std::unique(support_.begin(), support_.end()), support_.end());
+  for (size_t a = 0; a < support_.size(); ++a)
+    localOf_[static_cast<size_t>(support_[a])] = static_cast<Index>(a);
+  pins_.clear();
+  planes_.clear();
+  size_t largestPlane = 0;
+  for (const Constraint& c : constraints.constraints()) {
+    if (c.kind == ConstraintKind::Position) {
+      pins_.push_back(Pin{c.id, local(c.vertex)});
+    } else {
+      Plane plane;
+      plane.id = c.id;
+      normalFitVertices(mesh, c.vertex, fit);
+      for (Index v : fit) plane.locals.push_back(local(v));
+      plane.mass.assign(fit.size(), 0.0);
+      plane.arm.assign(fit.size(), Vec3::Zero());
+      plane.hint = c.value;
+      largestPlane = std::max(largestPlane, fit.size());
+      planes_.push_back(std::move(plane));
+    }
+  }
+  pinForce_.assign(pins_.size(), Vec3::Zero());
+  couple_.assign(planes_.size(), Vec3::Zero());
+  const Index s = static_cast<Index>(support_.size());
+  forces_.setZero(s, 3);
+  predicted_.setZero(s, 3);
+  supportEnd_.setZero(s, 3);
+  points_.reserve(largestPlane);
+  const Index unknownCount = 3 * static_cast<Index>(pins_.size() + planes_.size());
+  jacobian_.setZero(unknownCount, unknownCount);
+  factor_ = Eigen::CompleteOrthogonalDecomposition<Eigen::MatrixXd>(unknownCount, unknownCount);
+  for (VectorX* v : {&rhs_, &step_, &base_, &trial_, &shifted_}) v->setZero(unknownCount);
+}
+
+Index ConstraintSolver::local(Index vertex) const {
+  if (vertex < 0 || static_cast<size_t>(vertex) >= localOf_.size()) return -1;
+  return localOf_[static_cast<size_t>(vertex)];
+}
+
+void ConstraintSolver::gatherSupport(const Points& all, Points& out) const {
+  for (size_t a = 0; a < support_.size(); ++a) out.row(static_cast<Index>(a)) = all.row(support_[a]);
+}
+
+void ConstraintSolver::beginStep(const Mesh& mesh, const ConstraintSet& constraints,
+                                 const Points& position, const VectorX& mass) {
+  for (Plane& plane : planes_) {
+    double total = 0.0;
+    Vec3 centre = Vec3::Zero();
+    for (size_t k = 0; k < plane.locals.size(); ++k) {
+      const Index v = support_[static_cast<size_t>(plane.locals[k])];
+      plane.mass[k] = mass[v];
+      total += mass[v];
+      centre += mass[v] * position.row(v).transpose();
+    }
+    centre /= total;
+    plane.inertia.setZero();
+    plane.radius = 0.0;
+    for (size_t k = 0; k < plane.locals.size(); ++k) {
+      const Index v = support_[static_cast<size_t>(plane.locals[k])];
+      plane.arm[k] = position.row(v).transpose() - centre;
+      plane.inertia += plane.mass[k] * armInertia(plane.arm[k]);
+      plane.radius += plane.arm[k].norm() / static_cast<double>(plane.locals.size());
+    }
+    // Orientation of the fitted plane this step: the faces' where the vertex has faces,
+    // else continuity with the last step (a curve), so the normal never flips.
+    const Index vertex = constraints.get(plane.id).vertex;
+    Vec3 reference = Vec3::Zero();
+    for (Index f : mesh.vertexFaces(vertex)) {
+      const auto corners = mesh.face(f);
+      for (size_t k = 0; k < corners.size(); ++k)
+        reference += Vec3(position.row(corners[k]).transpose())
+                         .cross(Vec3(position.row(corners[(k + 1) % corners.size()]).transpose()));
+    }
+    gatherSupport(position, supportEnd_);
+    const Vec3 current = planeNormal(plane, supportEnd_);
+    if (reference.squaredNorm() > 0.0) plane.hint = current.dot(reference) < 0.0 ? -current : current;
+    else if (current.squaredNorm() > 0.0) plane.hint = current;
+  }
+  // Warm start: last cycle's unknowns, with this cycle's arms.
+  assembleForces();
+}
+
+Vec3 ConstraintSolver::planeNormal(const Plane& plane, const Points& supportPosition) {
+  points_.clear();
+  for (Index l : plane.locals) points_.push_back(supportPosition.row(l).transpose());
+  const std::optional<Vec3> normal = fitPlaneNormal(points_);
+  if (!normal) return Vec3::Zero();
+  return normal->dot(plane.hint) < 0.0 ? Vec3(-*normal) : *normal;
+}
+
+double ConstraintSolver::planeResidual(const ConstraintSet& constraints, const Plane& plane,
+                                       const Points& supportPosition, Vec3& rotation) {
+  const Vec3 target = constraints.get(plane.id).value;
+  const Vec3 normal = planeNormal(plane, supportPosition);
+  if (normal.squaredNorm() == 0.0) {
+    // The plane collapsed to a line: no normal; report the largest error.
+    rotation.setZero();
+    return std::numbers::pi;
+  }
+  // The rotation taking the current normal to the target.
+  Vec3 axis = normal.cross(target);
+  const double angle = std::atan2(axis.norm(), normal.dot(target));
+  if (axis.norm() > 0.0) {
+    axis.normalize();
+  } else if (angle > 1.0) {  // opposite: any axis across the normal
+    Index k = 0;
+    normal.cwiseAbs().minCoeff(&k);
+    axis = normal.cross(Vec3::Unit(k)).normalized();
+  }
+  rotation = angle * axis;
+  return angle;
+}
+
+void ConstraintSolver::assembleForces() {
+  forces_.setZero();
+  for (size_t k = 0; k < pins_.size(); ++k) forces_.row(pins_[k].local) += pinForce_[k].transpose();
+  for (size_t q = 0; q < planes_.size(); ++q) {
+    const Plane& plane = planes_[q];
+    for (size_t k = 0; k < plane.locals.size(); ++k)
+      forces_.row(plane.locals[k]) += (plane.mass[k] * couple_[q].cross(plane.arm[k])).transpose();
+  }
+}
+
+bool ConstraintSolver::check(const ConstraintSet& constraints, const Points& endPosition,
+                             double positionTolerance, double normalTolerance,
+                             ConstraintReport& report) {
+  gatherSupport(endPosition, supportEnd_);
+  report.positionError = 0.0;
+  report.normalError = 0.0;
+  for (const Pin& pin : pins_) {
+    const Vec3 target = constraints.get(pin.id).value;
+    report.positionError =
+        std::max(report.positionError, (supportEnd_.row(pin.local).transpose() - target).norm());
+  }
+  Vec3 rotation;
+  for (const Plane& plane : planes_)
+    report.normalError =
+        std::max(report.normalError, planeResidual(constraints, plane, supportEnd_, rotation));
+  report.converged =
+      report.positionError <= positionTolerance && report.normalError <= normalTolerance;
+  return report.converged;
+}
+
+double ConstraintSolver::residual(const ConstraintSet& constraints, const StepResponse& response,
+                                  VectorX& out, double& positionError, double& normalError) {
+  // Pins: target - predicted position (m). Planes: the turn taking the predicted normal to
+  // the target, times the plane's radius (m), so that both weigh alike in least squares.
+  assembleForces();
+  response.predict(forces_, predicted_);
+  positionError = 0.0;
+  normalError = 0.0;
+  Index row = 0;
+  for (const Pin& pin : pins_) {
+    const Vec3 e = constraints.get(pin.id).value - predicted_.row(pin.local).transpose();
+    positionError = std::max(positionError, e.norm());
+    out.segment<3>(row) = e;
+    row += 3;
+  }
+  Vec3 rotation;
+  for (const Plane& plane : planes_) {
+    normalError = std::max(normalError, planeResidual(constraints, plane, predicted_, rotation));
+    out.segment<3>(row) = plane.radius * rotation;
+    row += 3;
+  }
+  return out.squaredNorm();
+}
+
+void ConstraintSolver::unknowns(VectorX& x) const {
+  Index row = 0;
+  for (const Vec3& f : pinForce_) {
+    x.segment<3>(row) = f;
+    row += 3;
+  }
+  for (const Vec3& l : couple_) {
+    x.segment<3>(row) = l;
+    row += 3;
+  }
+}
+
+void ConstraintSolver::setUnknowns(const VectorX& x) {
+  Index row = 0;
+  for (Vec3& f : pinForce_) {
+    f = x.segment<3>(row);
+    row += 3;
+  }
+  for (Vec3& l : couple_) {
+    l = x.segment<3>(row);
+    row += 3;
+  }
+}
+
+void ConstraintSolver::solve(const ConstraintSet& constraints, const StepResponse& response,
+                             double positionTolerance, double normalTolerance) {
+  // Damped Newton on all unknowns at once (pin forces and plane couples), with the Jacobian
+  // of the response model by forward differences: the elastic part is affine, so its
+  // columns are exact to rounding, and the pins' pull on a plane's vertices (which decides
+  // which turns of the plane are reachable at all) is part of it. The least-squares step of
+  // minimum norm leaves unreachable directions alone instead of letting their forces grow.
+  constexpr int kIterations = 20;
+  const Index n = static_cast<Index>(3 * (pins_.size() + planes_.size()));
+  if (n == 0) return;
+  double positionError = 0.0, normalError = 0.0;
+  double cost = residual(constraints, response, rhs_, positionError, normalError);
+  for (int iteration = 0; iteration < kIterations; ++iteration) {
+    if (positionError <= positionTolerance && normalError <= normalTolerance) break;
+    unknowns(base_);
+    for (Index c = 0; c < n; ++c) {
+      const double scale = base_.segment<3>(3 * (c / 3)).cwiseAbs().maxCoeff();
+      const double h = 1e-7 * std::max(1.0, scale);
+      trial_ = base_;
+      trial_[c] += h;
+      setUnknowns(trial_);
+      double unusedP = 0.0, unusedN = 0.0;
+      residual(constraints, response, shifted_, unusedP, unusedN);
+      jacobian_.col(c) = (shifted_ - rhs_) / h;
+    }
+    factor_.compute(jacobian_);
+    step_ = factor_.solve(rhs_);
+    // Backtracking: halve the step until the residual shrinks.
+    bool improved = false;
+    for (double fraction = 1.0; fraction > 1e-3; fraction *= 0.5) {
+      trial_ = base_ - fraction * step_;
+      setUnknowns(trial_);
+      double p = 0.0, q = 0.0;
+      const double trialCost = residual(constraints, response, shifted_, p, q);
+      if (trialCost < cost) {
+        cost = trialCost;
+        rhs_ = shifted_;
+        positionError = p;
+        normalError = q;
+        improved = true;
+        break;
+      }
+    }
+    if (!improved) {
+      setUnknowns(base_);
+      break;
+    }
+  }
+  assembleForces();
+}
+
+void ConstraintSolver::velocityCorrection(const ConstraintSet& constraints,
+                                          const Points& startPosition, const Points& endPosition,
+                                          const Points& velocity, const VectorX& mass,
+                                          std::span<const double> share, double period,
+                                          Points& delta) const {
+  delta.setZero(static_cast<Index>(support_.size()), 3);
+  auto sigma = [&](Index v) { return share.empty() ? 1.0 : share[static_cast<size_t>(v)]; };
+  for (const Plane& plane : planes_) {
+    if (getenv("ZS_NOPLANEFIX")) break;
+    // The plane's angular velocity about its centre of mass (least squares), minus its
+    // part about the normal, is removed: a pure couple of impulses.
+    double total = 0.0;
+    Vec3 centre = Vec3::Zero(), mean = Vec3::Zero();
+    for (size_t k = 0; k < plane.locals.size(); ++k) {
+      const Index v = support_[static_cast<size_t>(plane.locals[k])];
+      total += mass[v];
+      centre += mass[v] * endPosition.row(v).transpose();
+      mean += mass[v] * (velocity.row(v) + delta.row(plane.locals[k])).transpose();
+    }
+    centre /= total;
+    mean /= total;
+    Mat3 inertia = Mat3::Zero();
+    Vec3 angular = Vec3::Zero();
+    for (size_t k = 0; k < plane.locals.size(); ++k) {
+      const Index v = support_[static_cast<size_t>(plane.locals[k])];
+      const Vec3 arm = endPosition.row(v).transpose() - centre;
+      inertia += mass[v] * armInertia(arm);
+      angular += mass[v] * arm.cross(Vec3((velocity.row(v) + delta.row(plane.locals[k])).transpose()) - mean);
+    }
+    Vec3 omega = pseudoInverse(inertia) * angular;
+    const Vec3 normal = constraints.get(plane.id).value;
+    omega -= omega.dot(normal) * normal;
+    for (size_t k = 0; k < plane.locals.size(); ++k) {
+      const Index v = support_[static_cast<size_t>(plane.locals[k])];
+      if (!(sigma(v) > 0.0)) continue;
+      const Vec3 arm = endPosition.row(v).transpose() - centre;
+      delta.row(plane.locals[k]) -= omega.cross(arm).transpose();
+    }
+  }
+  for (const Pin& pin : pins_) {
+    const Index v = support_[static_cast<size_t>(pin.local)];
+    if (!(sigma(v) > 0.0)) continue;
+    const Eigen::RowVector3d wanted = (endPosition.row(v) - startPosition.row(v)) / period;
+    delta.row(pin.local) = wanted - velocity.row(v);
+  }
+}
+
+}  // namespace zsculpt

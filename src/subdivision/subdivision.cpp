@@ -1,0 +1,437 @@
+// SubdivisionStencil: L levels of refineLevel composed into one sparse matrix (paper
+// section 3, "Smoothing"), so that a frame's refresh is one sparse product.
+
+#include "zsculpt/subdivision/subdivision.h"
+
+#include <algorithm>
+#include <cmath>
+#include <string>
+
+#include "zsculpt/core/errors.h"
+#include "zsculpt/subdivision/refinement.h"
+
+namespace zsculpt {
+
+using subdivision_detail::LevelStep;
+using subdivision_detail::LevelTopology;
+
+namespace {
+
+constexpr int kMaxLevels = 10;
+// Each refined vertex's row has up to ~16 entries per level pair; 2^25 rows keeps the
+// stencil within a few gigabytes and every index within Index.
+constexpr std::int64_t kMaxRefinedVertices = std::int64_t{1} << 25;
+
+SparseRowMatrix identity(Index n) {
+  SparseRowMatrix m(n, n);
+  m.resizeNonZeros(n);
+  for (Index i = 0; i <= n; ++i) m.outerIndexPtr()[i] = i;
+  for (Index i = 0; i < n; ++i) {
+    m.innerIndexPtr()[i] = i;
+    m.valuePtr()[i] = 1.0;
+  }
+  return m;
+}
+
+void validateMass(const Mesh& control, const VectorX& mass) {
+  if (mass.size() != control.numVertices())
+    throw InvalidInputError("mass: " + std::to_string(mass.size()) + " values for " +
+                            std::to_string(control.numVertices()) + " vertices");
+  for (Index i = 0; i < mass.size(); ++i)
+    if (!std::isfinite(mass[i]) || mass[i] <= 0.0)
+      throw InvalidInputError("mass: vertex " + std::to_string(i) + " has mass " +
+                              std::to_string(mass[i]) + ", which is not positive and finite");
+}
+
+}  // namespace
+
+SubdivisionStencil::SubdivisionStencil(const Mesh& control, const SubdivisionOptions& options)
+    : levels_(options.levels), numControl_(control.numVertices()) {
+  if (options.levels < 0 || options.levels > kMaxLevels)
+    throw InvalidInputError("levels: " + std::to_string(options.levels) + " is outside [0, " +
+                            std::to_string(kMaxLevels) + "]");
+  if (options.mass) validateMass(control, *options.mass);
+  auto tooLarge = [&] {
+    return InvalidInputError("levels: " + std::to_string(levels_) + " levels of this " +
+                             std::to_string(numControl_) + "-vertex mesh would exceed " +
+                             std::to_string(kMaxRefinedVertices) + " refined vertices");
+  };
+
+  LevelTopology topology;
+  topology.numVertices = control.numVertices();
+  topology.faces = control.faces();
+  const bool surface = control.numFaces() > 0;
+  if (!surface) topology.curveEdges = control.edges();
+
+  // Refuse up front what would not fit: the first level gives about one vertex per face
+  // corner (surfaces) or two per edge (curves), each later level about 4 (or 2) times more.
+  {
+    const double first = surface ? static_cast<double>(topology.faces.indices.size())
+                                 : 2.0 * static_cast<double>(topology.curveEdges.size());
+    const double estimate = levels_ == 0 ? 0.0 : first * std::pow(surface ? 4.0 : 2.0, levels_ - 1);
+    if (estimate > static_cast<double>(kMaxRefinedVertices)) throw tooLarge();
+  }
+
+  VectorX mass;
+  if (options.mass) mass = *options.mass;
+  massTransfer_.reserve(static_cast<size_t>(levels_));  // growth would copy the matrices
+  anchors_.resize(static_cast<size_t>(numControl_));
+  for (Index v = 0; v < numControl_; ++v) anchors_[v] = {AnchorKind::Vertex, v, -1};
+  {
+    SparseRowMatrix unit = identity(numControl_);
+    matrix_.swap(unit);
+  }
+
+  for (int level = 0; level < levels_; ++level) {
+    // Refined vertices: one per corner, two per feature edge, at most one per vertex.
+    const std::int64_t bound = static_cast<std::int64_t>(topology.faces.indices.size()) * 3 +
+                               2 * static_cast<std::int64_t>(topology.curveEdges.size()) +
+                               topology.numVertices;
+    if (bound > kMaxRefinedVertices) throw tooLarge();
+    const bool first = level == 0;
+    LevelStep step = subdivision_detail::refineLevel(topology, options.mass ? &mass : nullptr,
+                                                     options.interpolate && first);
+    // Follow each control vertex's anchor down one level.
+    for (Index v = 0; v < numControl_; ++v) {
+      InterpolationAnchor& anchor = anchors_[v];
+      if (first) {
+        anchor = step.anchor[v];
+        continue;
+      }
+      switch (anchor.kind) {
+        case AnchorKind::Face:
+          break;  // the F-face of face f is face f of the next level
+        case AnchorKind::Segment: {
+          const Index e = step.findFeatureEdge(anchor.a, anchor.b);
+          if (e >= 0)
+            anchor = {AnchorKind::Segment, step.curvePoint(e, anchor.a),
+                      step.curvePoint(e, anchor.b)};
+          else
+            anchor = {AnchorKind::Vertex, step.child[anchor.a], -1};
+          break;
+        }
+        case AnchorKind::Vertex:
+          anchor.a = step.child[anchor.a];
+          break;
+      }
+    }
+    // Eigen 3.4's SparseMatrix has no move operations: swap, never copy, the large ones.
+    if (first) {
+      matrix_.swap(step.positions);
+    } else {
+      SparseRowMatrix composed = subdivision_detail::multiplyRowMajor(step.positions, matrix_);
+      matrix_.swap(composed);
+    }
+    if (options.mass) mass = step.mass * mass;
+    massTransfer_.emplace_back();
+    massTransfer_.back().swap(step.mass);
+    topology = std::move(step.next);
+  }
+
+  refinedFaces_ = std::move(topology.faces);
+  if (surface) {
+    subdivision_detail::faceEdgesAndRings(topology.numVertices, refinedFaces_, refinedEdges_,
+                                          refinedNeighbors_);
+  } else {
+    refinedEdges_ = std::move(topology.curveEdges);
+    std::vector<std::pair<Index, Index>> pairs;
+    pairs.reserve(2 * refinedEdges_.size());
+    for (const auto& [a, b] : refinedEdges_) {
+      pairs.emplace_back(a, b);
+      pairs.emplace_back(b, a);
+    }
+    refinedNeighbors_ = buildCsr(topology.numVertices, pairs);
+  }
+  controlToRefined_.resize(static_cast<size_t>(numControl_));
+  for (Index v = 0; v < numControl_; ++v) {
+    const InterpolationAnchor& anchor = anchors_[v];
+    controlToRefined_[v] =
+        anchor.kind == AnchorKind::Face ? refinedFaces_.row(anchor.a)[0] : anchor.a;
+  }
+}
+
+SubdivisionStencil::SubdivisionStencil(SubdivisionStencil&& other) noexcept {
+  *this = std::move(other);
+}
+
+SubdivisionStencil& SubdivisionStencil::operator=(SubdivisionStencil&& other) noexcept {
+  if (this == &other) return *this;
+  levels_ = other.levels_;
+  numControl_ = other.numControl_;
+  matrix_.swap(other.matrix_);
+  massTransfer_.swap(other.massTransfer_);  // swaps buffers: no element is copied
+  refinedFaces_ = std::move(other.refinedFaces_);
+  refinedEdges_ = std::move(other.refinedEdges_);
+  refinedNeighbors_ = std::move(other.refinedNeighbors_);
+  controlToRefined_ = std::move(other.controlToRefined_);
+  anchors_ = std::move(other.anchors_);
+  return *this;
+}
+
+int SubdivisionStencil::levels() const {
+  return levels_;
+}
+Index SubdivisionStencil::numControlVertices() const {
+  return numControl_;
+}
+Index SubdivisionStencil::numRefinedVertices() const {
+  return static_cast<Index>(matrix_.rows());
+}
+const CsrIndex& SubdivisionStencil::refinedFaces() const {
+  return refinedFaces_;
+}
+const std::vector<std::array<Index, 2>>& SubdivisionStencil::refinedEdges() const {
+  return refinedEdges_;
+}
+const CsrIndex& SubdivisionStencil::refinedVertexNeighbors() const {
+  return refinedNeighbors_;
+}
+const SparseRowMatrix& SubdivisionStencil::matrix() const {
+  return matrix_;
+}
+const std::vector<Index>& SubdivisionStencil::controlToRefined() const {
+  return controlToRefined_;
+}
+const std::vector<InterpolationAnchor>& SubdivisionStencil::anchors() const {
+  return anchors_;
+}
+
+void SubdivisionStencil::apply(const Points& control, Points& refined) const {
+  ZSCULPT_ASSERT(control.rows() == numControl_, "apply: control has the wrong row count");
+  ZSCULPT_ASSERT(refined.rows() == matrix_.rows(), "apply: refined has the wrong row count");
+  // One pass over the stencil's rows; the control points (24 bytes each) stay in cache.
+  const Index rows = static_cast<Index>(matrix_.rows());
+  const Index* outer = matrix_.outerIndexPtr();
+  const Index* inner = matrix_.innerIndexPtr();
+  const double* value = matrix_.valuePtr();
+  const double* x = control.data();
+  double* y = refined.data();
+  for (Index r = 0; r < rows; ++r) {
+    double sx = 0.0, sy = 0.0, sz = 0.0;
+    for (Index p = outer[r]; p < outer[r + 1]; ++p) {
+      const double w = value[p];
+      const double* xi = x + 3 * static_cast<std::ptrdiff_t>(inner[p]);
+      sx += w * xi[0];
+      sy += w * xi[1];
+      sz += w * xi[2];
+    }
+    double* yr = y + 3 * static_cast<std::ptrdiff_t>(r);
+    yr[0] = sx;
+    yr[1] = sy;
+    yr[2] = sz;
+  }
+}
+
+void SubdivisionStencil::apply(const VectorX& control, VectorX& refined) const {
+  ZSCULPT_ASSERT(control.size() == numControl_, "apply: control has the wrong size");
+  ZSCULPT_ASSERT(refined.size() == matrix_.rows(), "apply: refined has the wrong size");
+  const Index rows = static_cast<Index>(matrix_.rows());
+  const Index* outer = matrix_.outerIndexPtr();
+  const Index* inner = matrix_.innerIndexPtr();
+  const double* value = matrix_.valuePtr();
+  for (Index r = 0; r < rows; ++r) {
+    double s = 0.0;
+    for (Index p = outer[r]; p < outer[r + 1]; ++p) s += value[p] * control[inner[p]];
+    refined[r] = s;
+  }
+}
+
+void SubdivisionStencil::refinedMass(const VectorX& controlMass, VectorX& refinedMass) const {
+  if (controlMass.size() != numControl_)
+    throw InvalidInputError("mass: " + std::to_string(controlMass.size()) + " values for " +
+                            std::to_string(numControl_) + " vertices");
+  refinedMass = controlMass;
+  for (const SparseRowMatrix& transfer : massTransfer_) refinedMass = transfer * refinedMass;
+}
+
+VectorX SubdivisionStencil::refinedMass(const VectorX& controlMass) const {
+  VectorX out;
+  refinedMass(controlMass, out);
+  return out;
+}
+
+void SubdivisionStencil::refinedNormals(const Points& refined, Points& normals) const {
+  bestPlaneNormals(refinedFaces_, refinedNeighbors_, refined, normals);
+}
+
+namespace {
+
+/// Merges refined vertices joined by a zero-length edge (Mesh refuses them: they would be
+/// zero-length springs). Degenerate input makes them: two faces on the same vertices give
+/// identical face points. Faces left with a repeated corner are dropped; vertices are
+/// renumbered in order, keeping the first of each merged set.
+void weldZeroLengthEdges(Points& positions, std::vector<std::vector<Index>>& faces,
+                         std::vector<std::array<Index, 2>>& edges) {
+  const Index n = static_cast<Index>(positions.rows());
+  std::vector<Index> parent(static_cast<size_t>(n));
+  for (Index v = 0; v < n; ++v) parent[v] = v;
+  auto find = [&](Index v) {
+    while (parent[v] != v) v = parent[v] = parent[parent[v]];
+    return v;
+  };
+  auto coincide = [&](Index a, Index b) {
+    return a != b && (positions.row(a) - positions.row(b)).squaredNorm() == 0.0;
+  };
+  bool merged = false;
+  // Collapsing a face can join two of its corners that were not adjacent: repeat until no
+  // zero-length edge is left (each pass merges at least one pair, so this ends).
+  for (bool changed = true; changed;) {
+    changed = false;
+    auto unite = [&](Index a, Index b) {
+      a = find(a);
+      b = find(b);
+      if (a == b) return;
+      parent[std::max(a, b)] = std::min(a, b);
+      changed = merged = true;
+    };
+    for (const auto& face : faces)
+      for (size_t k = 0; k < face.size(); ++k)
+        if (coincide(face[k], face[(k + 1) % face.size()]))
+          unite(face[k], face[(k + 1) % face.size()]);
+    for (const auto& [a, b] : edges)
+      if (coincide(a, b)) unite(a, b);
+    if (!changed) break;
+    for (auto& face : faces) {
+      std::vector<Index> kept;
+      for (Index v : face) {
+        const Index r = find(v);
+        if (kept.empty() || kept.back() != r) kept.push_back(r);
+      }
+      while (kept.size() > 1 && kept.back() == kept.front()) kept.pop_back();
+      face = std::move(kept);
+    }
+    std::erase_if(faces, [](std::vector<Index>& face) {
+      if (face.size() < 3) return true;
+      std::vector<Index> sorted = face;
+      std::sort(sorted.begin(), sorted.end());
+      return std::adjacent_find(sorted.begin(), sorted.end()) != sorted.end();
+    });
+    for (auto& edge : edges) edge = {find(edge[0]), find(edge[1])};
+    std::erase_if(edges, [](const std::array<Index, 2>& e) { return e[0] == e[1]; });
+  }
+  if (!merged) return;
+  std::vector<Index> index(static_cast<size_t>(n), -1);
+  Index next = 0;
+  for (Index v = 0; v < n; ++v)
+    if (find(v) == v) {
+      index[v] = next;
+      positions.row(next++) = positions.row(v);
+    }
+  positions.conservativeResize(next, 3);
+  for (auto& face : faces)
+    for (Index& v : face) v = index[find(v)];
+  for (auto& edge : edges) {
+    edge = {index[find(edge[0])], index[find(edge[1])]};
+    if (edge[0] > edge[1]) std::swap(edge[0], edge[1]);
+  }
+  std::sort(edges.begin(), edges.end());
+  edges.erase(std::unique(edges.begin(), edges.end()), edges.end());
+}
+
+}  // namespace
+
+Mesh subdivide(const Mesh& control, const SubdivisionOptions& options) {
+  const SubdivisionStencil stencil(control, options);
+  Points refined(stencil.numRefinedVertices(), 3);
+  stencil.apply(control.positions(), refined);
+  const CsrIndex& faces = stencil.refinedFaces();
+  std::vector<std::vector<Index>> polygons(static_cast<size_t>(faces.rows()));
+  for (Index f = 0; f < faces.rows(); ++f)
+    polygons[f].assign(faces.row(f).begin(), faces.row(f).end());
+  std::vector<std::array<Index, 2>> edges;
+  if (faces.rows() == 0) edges = stencil.refinedEdges();
+  weldZeroLengthEdges(refined, polygons, edges);
+  return Mesh(std::move(refined), polygons, edges);
+}
+
+// ---- interpolation error ---------------------------------------------------------------
+
+namespace {
+
+/// Closest point of triangle abc to p (Ericson, Real-Time Collision Detection, 5.1.5).
+Vec3 closestOnTriangle(const Vec3& p, const Vec3& a, const Vec3& b, const Vec3& c) {
+  const Vec3 ab = b - a, ac = c - a, ap = p - a;
+  const double d1 = ab.dot(ap), d2 = ac.dot(ap);
+  if (d1 <= 0.0 && d2 <= 0.0) return a;
+  const Vec3 bp = p - b;
+  const double d3 = ab.dot(bp), d4 = ac.dot(bp);
+  if (d3 >= 0.0 && d4 <= d3) return b;
+  const double vc = d1 * d4 - d3 * d2;
+  if (vc <= 0.0 && d1 >= 0.0 && d3 <= 0.0) return a + d1 / (d1 - d3) * ab;
+  const Vec3 cp = p - c;
+  const double d5 = ab.dot(cp), d6 = ac.dot(cp);
+  if (d6 >= 0.0 && d5 <= d6) return c;
+  const double vb = d5 * d2 - d1 * d6;
+  if (vb <= 0.0 && d2 >= 0.0 && d6 <= 0.0) return a + d2 / (d2 - d6) * ac;
+  const double va = d3 * d6 - d5 * d4;
+  if (va <= 0.0 && (d4 - d3) >= 0.0 && (d5 - d6) >= 0.0)
+    return b + (d4 - d3) / ((d4 - d3) + (d5 - d6)) * (c - b);
+  const double denom = va + vb + vc;
+  if (denom == 0.0) return a;  // degenerate triangle
+  return a + ab * (vb / denom) + ac * (vc / denom);
+}
+
+double distanceToSegment(const Vec3& p, const Vec3& a, const Vec3& b) {
+  const Vec3 ab = b - a;
+  const double len2 = ab.squaredNorm();
+  const double t = len2 > 0.0 ? std::clamp((p - a).dot(ab) / len2, 0.0, 1.0) : 0.0;
+  return (a + t * ab - p).norm();
+}
+
+void checkSizes(const SubdivisionStencil& stencil, const Points& control, const Points& refined) {
+  if (control.rows() != stencil.numControlVertices() ||
+      refined.rows() != stencil.numRefinedVertices())
+    throw InvalidInputError("interpolation error: positions do not match the stencil's sizes");
+}
+
+}  // namespace
+
+void interpolationErrors(const SubdivisionStencil& stencil, const Points& control,
+                         const Points& refined, VectorX& errors) {
+  checkSizes(stencil, control, refined);
+  const auto& anchors = stencil.anchors();
+  const CsrIndex& faces = stencil.refinedFaces();
+  errors.resize(control.rows());
+  for (Index v = 0; v < control.rows(); ++v) {
+    const Vec3 p = control.row(v).transpose();
+    const InterpolationAnchor& anchor = anchors[v];
+    auto at = [&](Index r) { return Vec3(refined.row(r).transpose()); };
+    switch (anchor.kind) {
+      case AnchorKind::Vertex:
+        errors[v] = (at(anchor.a) - p).norm();
+        break;
+      case AnchorKind::Segment:
+        errors[v] = distanceToSegment(p, at(anchor.a), at(anchor.b));
+        break;
+      case AnchorKind::Face: {
+        const auto corners = faces.row(anchor.a);
+        double best = (at(corners[0]) - p).norm();
+        for (size_t k = 1; k + 1 < corners.size(); ++k) {
+          const Vec3 q = closestOnTriangle(p, at(corners[0]), at(corners[k]), at(corners[k + 1]));
+          best = std::min(best, (q - p).norm());
+        }
+        errors[v] = best;
+        break;
+      }
+    }
+  }
+}
+
+double maxInterpolationError(const SubdivisionStencil& stencil, const Points& control,
+                             const Points& refined) {
+  VectorX errors;
+  interpolationErrors(stencil, control, refined, errors);
+  return errors.size() > 0 ? errors.maxCoeff() : 0.0;
+}
+
+double maxVertexInterpolationError(const SubdivisionStencil& stencil, const Points& control,
+                                   const Points& refined) {
+  checkSizes(stencil, control, refined);
+  double worst = 0.0;
+  const auto& map = stencil.controlToRefined();
+  for (Index v = 0; v < control.rows(); ++v)
+    worst = std::max(worst, (refined.row(map[v]) - control.row(v)).norm());
+  return worst;
+}
+
+}  // namespace zsculpt

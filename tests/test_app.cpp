@@ -1,0 +1,703 @@
+// The interactive application: the solver/display exchange, commands, recordings, replay,
+// picking, and (under Xvfb, when available) the window driven by a script.
+
+#include <gtest/gtest.h>
+#include <unistd.h>
+
+#include <algorithm>
+#include <atomic>
+#include <cstring>
+#include <chrono>
+#include <cmath>
+#include <cstdlib>
+#include <filesystem>
+#include <fstream>
+#include <iostream>
+#include <nlohmann/json.hpp>
+#include <map>
+#include <random>
+#include <thread>
+
+#include "zsculpt/app/commands.h"
+#include "zsculpt/app/picking.h"
+#include "zsculpt/app/recording.h"
+#include "zsculpt/app/session.h"
+#include "zsculpt/app/solver_thread.h"
+#include "zsculpt/app/triple_buffer.h"
+#include "zsculpt/core/errors.h"
+#include "zsculpt/io/state_io.h"
+#include "zsculpt/mesh/builtin.h"
+#include "zsculpt/physics/matrices.h"
+#include "zsculpt/render/image.h"
+
+namespace zsculpt::app {
+namespace {
+
+namespace fs = std::filesystem;
+
+fs::path tempDir(const std::string& name) {
+  const fs::path dir = fs::temp_directory_path() / ("zsculpt_test_app_" + name + "_" +
+                                                    std::to_string(::getpid()));
+  fs::remove_all(dir);
+  fs::create_directories(dir);
+  return dir;
+}
+
+SessionSetup gridSetup(Index n = 10, double ratio = 0.5) {
+  io::SceneDescription scene;
+  scene.mesh = "builtin:grid:" + std::to_string(n);
+  scene.properties.mass = 0.2;
+  scene.properties.stiffness = 5.0;
+  scene.properties.angularStiffness = 0.02;
+  scene.properties.damping = 0.01;
+  scene.simulation.dtRatio = ratio;
+  return sessionSetupFromScene(scene);
+}
+
+bool sameBits(const Points& a, const Points& b) {
+  return a.rows() == b.rows() &&
+         std::memcmp(a.data(), b.data(), sizeof(double) * static_cast<size_t>(a.size())) == 0;
+}
+
+// ---- triple buffer ----------------------------------------------------------------------------
+
+struct Stamped {
+  std::uint64_t serial = 0;
+  Points values;
+};
+
+TEST(TripleBuffer, ReaderNeverSeesATornOrOlderValue) {
+  // The writer publishes values whose every entry carries the same counter; the reader
+  // must only ever see whole values, never older than one it saw before.
+  TripleBuffer<Stamped> buffer;
+  constexpr Index kRows = 2000;
+  for (int i = 0; i < 3; ++i) buffer.slot(i).values = Points::Zero(kRows, 3);
+  constexpr std::uint64_t kPublishes = 20000;
+  std::atomic<bool> done{false};
+  std::thread writer([&] {
+    for (std::uint64_t k = 1; k <= kPublishes; ++k) {
+      Stamped& s = buffer.back();
+      s.serial = k;
+      s.values.setConstant(static_cast<double>(k));
+      buffer.publish();
+    }
+    done = true;
+  });
+  std::uint64_t last = 0, seen = 0, torn = 0, backwards = 0;
+  while (!done.load() || buffer.update()) {
+    buffer.update();
+    const Stamped& s = buffer.front();
+    if (s.serial < last) ++backwards;
+    last = s.serial;
+    if (s.serial == 0) continue;
+    ++seen;
+    const double k = static_cast<double>(s.serial);
+    if (s.values.minCoeff() != k || s.values.maxCoeff() != k) ++torn;
+  }
+  writer.join();
+  buffer.update();
+  EXPECT_EQ(torn, 0u);
+  EXPECT_EQ(backwards, 0u);
+  EXPECT_GT(seen, 0u);
+  // The newest value is always the one left for the reader.
+  EXPECT_EQ(buffer.front().serial, kPublishes);
+}
+
+// ---- commands ---------------------------------------------------------------------------------
+
+std::vector<Command> everyCommand() {
+  editing::Brush brush;
+  brush.property = Property::Stiffness;
+  brush.mode = editing::BrushMode::Multiply;
+  brush.value = 0.1 + 1e-17;  // not representable in few digits
+  brush.strength = 0.7;
+  brush.radius = 1.0 / 3.0;
+  brush.falloff = editing::Falloff::Sharp;
+  brush.distance = editing::DistanceKind::Euclidean;
+  editing::Brush global;
+  global.property = Property::Damping;
+  global.value = 0.05;
+  return {Play{},
+          Pause{},
+          StepOnce{},
+          Reset{},
+          SetTimeStep{Scheme::SymplecticEuler, 0.0123456789012345},
+          SetGravity{Vec3(0, 0, -9.81)},
+          SetStiffnessCap{std::numeric_limits<double>::infinity()},
+          SetStiffnessCap{12.5},
+          Edit{editing::Dab{brush, editing::BrushCentre::atVertex(3)}},
+          Edit{editing::Dab{brush, editing::BrushCentre::onFace(2, Vec3(0.1, 0.2, M_PI))}},
+          Edit{editing::Dab{brush, editing::BrushCentre::atPoint(Vec3(1, 2, 3))}},
+          Edit{editing::GlobalEdit{global}},
+          Edit{editing::Relax{}},
+          Edit{editing::ScaleRest{0.95}},
+          Edit{editing::Undo{}},
+          Edit{editing::Redo{}},
+          AddLoad{LoadKind::Force, 4, Vec3(1, 2, 3), 0.25},
+          AddLoad{LoadKind::Torque, 5, Vec3(0, 0, 1), std::numeric_limits<double>::infinity()},
+          ClearLoads{},
+          Pin{6, std::nullopt},
+          Pin{7, Vec3(1, 1, 1)},
+          Unpin{7},
+          PinBrush{editing::BrushCentre::atVertex(1), 1.5, false},
+          UnpinAll{},
+          PinNormal{8, Vec3(0, 0, 1)},
+          PinNormal{9, std::nullopt},
+          UnpinNormal{8},
+          DragStart{10, Vec3(0.1, 0.2, 0.3)},
+          DragMove{Vec3(1e-300, -2.5, 7.0 / 3.0)},
+          DragEnd{},
+          MarkSaved{}};
+}
+
+TEST(Commands, JsonRoundTripKeepsEveryBit) {
+  for (const Command& c : everyCommand()) {
+    const nlohmann::json j = commandToJson(c);
+    const Command back = commandFromJson(nlohmann::json::parse(j.dump()), "test");
+    EXPECT_EQ(commandName(back), commandName(c));
+    // Equal JSON after a round trip through text: every double kept its bits.
+    EXPECT_EQ(commandToJson(back).dump(), j.dump()) << describe(c);
+  }
+}
+
+TEST(Commands, MalformedJsonIsRefusedWithTheFieldNamed) {
+  auto refuse = [](const char* text, const char* fragment) {
+    try {
+      commandFromJson(nlohmann::json::parse(text), "rec.jsonl: line 3");
+      ADD_FAILURE() << text << " was accepted";
+    } catch (const InvalidInputError& e) {
+      EXPECT_NE(std::string(e.what()).find(fragment), std::string::npos) << e.what();
+      EXPECT_EQ(std::string(e.what()).rfind("rec.jsonl: line 3", 0), 0u) << e.what();
+    }
+  };
+  refuse(R"({"type": "jump"})", "unknown command");
+  refuse(R"({"type": "pin"})", "vertex: missing");
+  refuse(R"({"type": "pin", "vertex": -1})", "vertex");
+  refuse(R"({"type": "pin", "vertex": 1.5})", "expected an integer");
+  refuse(R"({"type": "pin", "vertex": 1, "colour": 2})", "colour: unknown field");
+  refuse(R"({"type": "drag_move", "target": [1, 2]})", "target: expected [x, y, z]");
+  refuse(R"({"type": "dab", "property": "stifness", "mode": "set", "value": 1, "strength": 1,
+             "radius": 1, "falloff": "smooth", "distance": "surface", "centre": {"vertex": 0}})",
+         "stifness");
+  refuse(R"([1, 2])", "JSON object");
+}
+
+// ---- session ----------------------------------------------------------------------------------
+
+TEST(Session, BadCommandsChangeNothing) {
+  Session session(gridSetup());
+  session.apply(Play{});
+  for (int i = 0; i < 5; ++i) session.advance();
+  const State before = session.state();
+  const auto undo = session.editor().undoDepth();
+  const Index n = session.model().mesh.numVertices();
+  EXPECT_THROW(session.apply(Pin{n, std::nullopt}), InvalidInputError);
+  EXPECT_THROW(session.apply(AddLoad{LoadKind::Force, -1, Vec3(1, 0, 0), 1.0}), InvalidInputError);
+  EXPECT_THROW(session.apply(AddLoad{LoadKind::Force, 0, Vec3(NAN, 0, 0), 1.0}), InvalidInputError);
+  EXPECT_THROW(session.apply(AddLoad{LoadKind::Force, 0, Vec3(1, 0, 0), 0.0}), InvalidInputError);
+  EXPECT_THROW(session.apply(SetTimeStep{Scheme::Default, -1.0}), InvalidInputError);
+  EXPECT_THROW(session.apply(SetStiffnessCap{0.0}), InvalidInputError);
+  EXPECT_THROW(session.apply(DragStart{n + 5, Vec3::Zero()}), InvalidInputError);
+  editing::Brush bad;
+  bad.property = Property::Mass;
+  bad.value = -1.0;
+  EXPECT_THROW(session.apply(Edit{editing::Dab{bad, editing::BrushCentre::atVertex(0)}}),
+               InvalidInputError);
+  EXPECT_TRUE(sameBits(session.state().position, before.position));
+  EXPECT_TRUE(sameBits(session.state().velocity, before.velocity));
+  EXPECT_EQ(session.editor().undoDepth(), undo);
+  EXPECT_TRUE(session.pins().empty());
+  EXPECT_FALSE(session.unsaved());
+}
+
+TEST(Session, DragMovesTheVertexToItsTargetAndPinsHold) {
+  Session session(gridSetup(8));
+  const Vec3 start = session.state().position.row(27).transpose();
+  session.apply(Pin{0, std::nullopt});
+  session.apply(DragStart{27, start});
+  for (int k = 1; k <= 40; ++k) {
+    session.apply(DragMove{start + Vec3(0, 0, 0.05 * k)});
+    session.advance();
+  }
+  EXPECT_NEAR(session.state().position(27, 2), 2.0, 1e-12);
+  EXPECT_NEAR(session.state().position(0, 2), 0.0, 1e-12);
+  // The neighbours follow the dragged vertex (springs pull them up).
+  EXPECT_GT(session.state().position(28, 2), 0.1);
+  // Released: the springs take it (it no longer sits on the last target).
+  session.apply(DragEnd{});
+  for (int k = 0; k < 10; ++k) session.advance();
+  EXPECT_GT(std::abs(session.state().position(27, 2) - 2.0), 1e-3);
+  EXPECT_NEAR(session.state().position(0, 2), 0.0, 1e-12);  // the pin still holds
+}
+
+TEST(Session, PaintingStiffnessChangesTheProperty) {
+  Session session(gridSetup(8));
+  editing::Brush brush;
+  brush.property = Property::Stiffness;
+  brush.value = 50.0;
+  brush.radius = 1.5;
+  session.apply(Edit{editing::Dab{brush, editing::BrushCentre::atVertex(27)}});
+  EXPECT_DOUBLE_EQ(session.model().properties.stiffness[27], 50.0);
+  EXPECT_DOUBLE_EQ(session.model().properties.stiffness[0], 5.0);
+  EXPECT_TRUE(session.unsaved());
+  // Stiffer: the critical period shrank (equation 5), and the snapshot says so.
+  Snapshot s;
+  session.fill(s, Property::Stiffness);
+  EXPECT_LT(s.tMax, criticalPeriod(SystemMatrices(Model::fromMesh(makeGrid(8), {}))) );
+  EXPECT_DOUBLE_EQ(s.scalar[27], 50.0);
+  session.apply(Edit{editing::Undo{}});
+  EXPECT_DOUBLE_EQ(session.model().properties.stiffness[27], 5.0);
+}
+
+TEST(Session, DivergenceRollsBackPausesAndSaysSo) {
+  // Three times the stable period of the default scheme: the state blows up.
+  SessionSetup setup = gridSetup(6, 3.0);
+  setup.scene.simulation.perturb = 0.01;
+  Session session(std::move(setup));
+  session.apply(Play{});
+  Session::Outcome outcome = Session::Outcome::Stepped;
+  for (int k = 0; k < 5000 && outcome == Session::Outcome::Stepped; ++k) outcome = session.advance();
+  ASSERT_EQ(outcome, Session::Outcome::Diverged);
+  EXPECT_FALSE(session.running());
+  ASSERT_TRUE(session.lastDivergence().has_value());
+  EXPECT_NE(session.lastDivergence()->message.find("rolled back"), std::string::npos);
+  EXPECT_TRUE(session.state().position.allFinite());
+  EXPECT_LT(session.state().position.cwiseAbs().maxCoeff(), 1e3);
+  EXPECT_LT(session.lastDivergence()->rolledBackTo, session.lastDivergence()->time);
+  std::vector<std::string> notices;
+  session.takeNotices(notices);
+  EXPECT_EQ(notices.size(), 1u);
+}
+
+// The same commands at the same cycles: the same state, bit for bit.
+TEST(Session, SameCommandsSameCyclesSameBits) {
+  auto run = [] {
+    Session session(gridSetup(9));
+    std::mt19937 rng(5);
+    for (int cycle = 0; cycle < 200; ++cycle) {
+      if (cycle % 7 == 0) session.apply(AddLoad{LoadKind::Force, static_cast<Index>(rng() % 81),
+                                                Vec3(0, 0, 0.3), 0.2});
+      if (cycle % 11 == 0) {
+        editing::Brush b;
+        b.value = 1.0 + cycle % 5;
+        b.radius = 1.2;
+        session.apply(Edit{editing::Dab{b, editing::BrushCentre::atVertex(static_cast<Index>(rng() % 81))}});
+      }
+      if (cycle == 50) session.apply(DragStart{40, session.state().position.row(40).transpose()});
+      if (cycle > 50 && cycle < 120) session.apply(DragMove{Vec3(4, 4, 0.01 * (cycle - 50))});
+      if (cycle == 120) session.apply(DragEnd{});
+      session.advance();
+    }
+    return session.state();
+  };
+  const State a = run();
+  const State b = run();
+  EXPECT_TRUE(sameBits(a.position, b.position));
+  EXPECT_TRUE(sameBits(a.velocity, b.velocity));
+  EXPECT_EQ(stateHash(a), stateHash(b));
+}
+
+// ---- solver thread ----------------------------------------------------------------------------
+
+// A storm of commands from one thread while the display thread reads snapshots: every
+// snapshot must be internally consistent (its diagnostics were measured on its own
+// positions and velocities), serials must increase, and nothing may crash or hang. Run
+// under ThreadSanitizer (-DZSCULPT_SANITIZE=thread) this is the data-race check.
+TEST(SolverThread, CommandStormWhileReadingSnapshots) {
+  auto session = std::make_unique<Session>(gridSetup(12));
+  const Index n = session->model().mesh.numVertices();
+  const double mass = session->model().properties.mass[0];
+  SolverThreadOptions options;
+  options.realTime = false;  // as fast as possible: the most publishes per second
+  options.startRunning = true;
+  SolverThread solver(std::move(session), options);
+  solver.start();
+
+  std::atomic<bool> stormDone{false};
+  std::atomic<std::uint64_t> pushed{0};
+  std::thread storm([&] {
+    std::mt19937 rng(1);
+    for (int i = 0; i < 3000; ++i) {
+      const Index v = static_cast<Index>(rng() % static_cast<unsigned>(n + 3));  // some out of range
+      const int kind = static_cast<int>(rng() % 12);
+      if (kind != 11) ++pushed;  // 11 is a display setting, not a command
+      switch (kind) {
+        case 0: solver.push(Pin{v, std::nullopt}); break;
+        case 1: solver.push(Unpin{v}); break;
+        case 2: solver.push(AddLoad{LoadKind::Force, v, Vec3(0, 0, 0.2), 0.1}); break;
+        case 3: solver.push(AddLoad{LoadKind::Torque, v, Vec3(0, 0, 0.05), 0.1}); break;
+        case 4: solver.push(DragStart{v, Vec3(5, 5, 0.5)}); break;
+        case 5: solver.push(DragMove{Vec3(5, 5, 0.001 * (i % 100))}); break;
+        case 6: solver.push(DragEnd{}); break;
+        case 7: {
+          editing::Brush b;
+          b.property = Property::Stiffness;
+          b.value = 2.0 + (i % 7);
+          b.radius = 1.5;
+          solver.push(Edit{editing::Dab{b, editing::BrushCentre::atVertex(v)}});
+          break;
+        }
+        case 8: solver.push(Edit{editing::Undo{}}); break;
+        case 9: solver.push(i % 2 ? Command(Pause{}) : Command(Play{})); break;
+        case 10: solver.push(StepOnce{}); break;
+        case 11: solver.setDisplayProperty(i % 2 ? Property::Stiffness : Property::Mass); break;
+      }
+
+      if (i % 64 == 0) std::this_thread::yield();
+    }
+    solver.push(Play{});
+    ++pushed;
+    stormDone = true;
+  });
+
+  std::uint64_t lastSerial = 0, snapshots = 0, inconsistent = 0, backwards = 0;
+  const auto deadline = std::chrono::steady_clock::now() + std::chrono::seconds(60);
+  bool joined = false;
+  for (;;) {
+    const Snapshot& s = solver.latest();
+    if (s.serial < lastSerial) ++backwards;
+    if (s.serial != lastSerial) {
+      lastSerial = s.serial;
+      ++snapshots;
+      // Uniform mass (the storm paints stiffness only): the centre of mass is the mean.
+      const Vec3 centre = s.position.colwise().mean().transpose();
+      const double kinetic = 0.5 * mass * s.velocity.squaredNorm();
+      if ((centre - s.diagnostics.centreOfMass).norm() > 1e-9 * (1.0 + centre.norm()) ||
+          std::abs(kinetic - s.diagnostics.kinetic) > 1e-9 * (1.0 + kinetic) ||
+          s.position.rows() != n || s.scalar.size() != n)
+        ++inconsistent;
+    }
+    if (stormDone.load()) {
+      if (!joined) {
+        storm.join();
+        joined = true;
+      }
+      // Every command handled; the storm may have left the solver paused (or a divergence
+      // paused it): single steps, one at a time, keep the snapshots coming.
+      if (s.commandsApplied >= pushed.load()) {
+        if (snapshots >= 50) break;
+        solver.push(StepOnce{});
+        ++pushed;
+      }
+    }
+    ASSERT_LT(std::chrono::steady_clock::now(), deadline)
+        << "the storm did not finish: " << snapshots << " snapshots, " << s.commandsApplied << " of "
+        << pushed.load() << " commands applied";
+  }
+  solver.stop();
+  // Refused commands (vertices out of range) were reported, not fatal.
+  bool refusedReported = false;
+  for (const std::string& m : solver.takeMessages()) {
+    if (m.find("diverged") != std::string::npos) std::cout << m << "\n";
+    if (m.find("out of range") != std::string::npos) refusedReported = true;
+  }
+  EXPECT_TRUE(refusedReported);
+  EXPECT_EQ(inconsistent, 0u);
+  EXPECT_EQ(backwards, 0u);
+  EXPECT_GE(snapshots, 50u);
+  EXPECT_TRUE(solver.sessionWhenStopped().state().position.allFinite());
+}
+
+TEST(SolverThread, RealTimeModeStepsAndStops) {
+  auto session = std::make_unique<Session>(gridSetup(6));
+  SolverThreadOptions options;
+  options.realTime = true;
+  options.speed = 50.0;  // fast forward so the test is short
+  options.startRunning = true;
+  options.maxCycles = 30;
+  SolverThread solver(std::move(session), options);
+  solver.start();
+  const auto deadline = std::chrono::steady_clock::now() + std::chrono::seconds(30);
+  while (!solver.finished()) {
+    ASSERT_LT(std::chrono::steady_clock::now(), deadline);
+    std::this_thread::sleep_for(std::chrono::milliseconds(2));
+  }
+  solver.stop();
+  EXPECT_EQ(solver.latest().cycle, 30u);
+  EXPECT_EQ(solver.sessionWhenStopped().cycle(), 30u);
+}
+
+// ---- recording and replay -----------------------------------------------------------------------
+
+// A live session (real time, commands pushed from another thread at whatever cycles the
+// timing gives) is recorded; replaying the recording twice gives the live final state bit
+// for bit.
+TEST(Recording, ReplayTwiceGivesTheLiveStateBitForBit) {
+  const fs::path dir = tempDir("replay");
+  const std::string path = (dir / "session.jsonl").string();
+  SessionSetup setup = gridSetup(10);
+  setup.scene.forces.push_back({5, Vec3(0, 0, 0.5), 0.0, 0.3});
+  auto recorder = std::make_shared<Recorder>(path, setup);
+  auto session = std::make_unique<Session>(std::move(setup));
+  SolverThreadOptions options;
+  options.speed = 20.0;
+  SolverThread solver(std::move(session), options, recorder);
+  solver.start();
+  solver.push(Play{});
+  std::mt19937 rng(3);
+  for (int i = 0; i < 120; ++i) {
+    const Index v = static_cast<Index>(rng() % 100);
+    switch (i % 6) {
+      case 0: solver.push(AddLoad{LoadKind::Force, v, Vec3(0.1, 0, 0.4), 0.2}); break;
+      case 1: {
+        editing::Brush b;
+        b.value = 3.0 + i % 4;
+        b.radius = 1.3;
+        solver.push(Edit{editing::Dab{b, editing::BrushCentre::onFace(v % 81, Vec3(v % 9 + 0.5, v / 10 + 0.5, 0))}});
+        break;
+      }
+      case 2: solver.push(DragStart{v, Vec3(2, 3, 0.4)}); break;
+      case 3: solver.push(DragMove{Vec3(2, 3, 0.01 * i)}); break;
+      case 4: solver.push(i % 4 ? Command(DragEnd{}) : Command(Pin{v, std::nullopt})); break;
+      case 5: solver.push(i % 5 ? Command(Edit{editing::Undo{}}) : Command(Pause{})); break;
+    }
+    if (i % 25 == 24) solver.push(Play{});
+    std::this_thread::sleep_for(std::chrono::microseconds(300 + rng() % 2000));
+  }
+  solver.push(SetTimeStep{Scheme::Default, 0.9 * solver.latest().tMax});
+  solver.push(Play{});
+  std::this_thread::sleep_for(std::chrono::milliseconds(100));
+  solver.stop();
+  const Session& live = solver.sessionWhenStopped();
+  recorder->finish(live.cycle(), live.state());
+  ASSERT_GT(live.cycle(), 10u);
+
+  const Recording recording = readRecording(path);
+  ASSERT_TRUE(recording.setup.has_value());
+  EXPECT_GT(recording.commands.size(), 100u);
+  const ReplayResult first = replay(recording);
+  const ReplayResult second = replay(recording);
+  EXPECT_EQ(first.cycles, live.cycle());
+  EXPECT_TRUE(sameBits(first.finalState.position, live.state().position));
+  EXPECT_TRUE(sameBits(first.finalState.velocity, live.state().velocity));
+  EXPECT_TRUE(sameBits(first.finalState.position, second.finalState.position));
+  EXPECT_TRUE(sameBits(first.finalState.velocity, second.finalState.velocity));
+  ASSERT_TRUE(first.matchesRecording.has_value());
+  EXPECT_TRUE(*first.matchesRecording);
+  fs::remove_all(dir);
+}
+
+TEST(Recording, ReplayWritesTheFinalStateCsv) {
+  const fs::path dir = tempDir("replay_out");
+  const std::string path = (dir / "r.jsonl").string();
+  SessionSetup setup = gridSetup(6);
+  {
+    Recorder recorder(path, setup);
+    Session session(setup);
+    recorder.record(0, Play{});
+    session.apply(Play{});
+    for (int k = 0; k < 15; ++k) session.advance();
+    const Command pin = Pin{3, Vec3(0, 0, 1)};
+    session.apply(pin);
+    recorder.record(session.cycle(), pin);
+    for (int k = 0; k < 15; ++k) session.advance();
+    recorder.finish(session.cycle(), session.state());
+  }
+  ReplayOptions options;
+  options.outDir = (dir / "out").string();
+  options.frames = false;
+  const ReplayResult result = replay(readRecording(path), options);
+  EXPECT_EQ(result.cycles, 30u);
+  ASSERT_TRUE(result.matchesRecording.has_value());
+  EXPECT_TRUE(*result.matchesRecording);
+  const State read = io::loadState((dir / "out" / "final_state.csv").string(), 36);
+  EXPECT_TRUE(sameBits(read.position, result.finalState.position));
+  EXPECT_TRUE(fs::exists(dir / "out" / "diagnostics.csv"));
+  fs::remove_all(dir);
+}
+
+TEST(Recording, MalformedRecordingsAreRefusedWithTheLine) {
+  const fs::path dir = tempDir("bad_recording");
+  auto write = [&](const std::string& text) {
+    const fs::path p = dir / "bad.jsonl";
+    std::ofstream(p) << text;
+    return p.string();
+  };
+  auto refuse = [&](const std::string& text, const std::string& fragment) {
+    const std::string p = write(text);
+    try {
+      readRecording(p);
+      ADD_FAILURE() << text << " was accepted";
+    } catch (const InvalidInputError& e) {
+      EXPECT_NE(std::string(e.what()).find(fragment), std::string::npos) << e.what();
+    }
+  };
+  refuse("{\"cycle\": 1, \"type\": \"play\"}\n{\"cycle\": 0, \"type\": \"pause\"}\n", "line 2");
+  refuse("{\"type\": \"play\"}\n", "cycle");
+  refuse("not json\n", "line 1");
+  refuse("{\"cycle\": 0, \"type\": \"play\"}\n{\"zsculpt_recording\": 1}\n", "first line");
+  EXPECT_THROW(readRecording((dir / "missing.jsonl").string()), IOError);
+  // A script without a header cannot be replayed on its own.
+  const Recording script = readRecording(write("{\"cycle\": 0, \"type\": \"play\"}\n"));
+  EXPECT_THROW(replay(script), InvalidInputError);
+  fs::remove_all(dir);
+}
+
+TEST(Recording, DefaultSceneLoads) {
+  const SessionSetup setup = loadSessionSetup(defaultScenePath());
+  EXPECT_EQ(setup.mesh.numVertices(), 100);
+  Session session(setup);
+  EXPECT_DOUBLE_EQ(session.model().properties.mass[0], 0.1);
+  EXPECT_GT(session.simulation().forces().size() + session.simulation().torques().size(), 1u);
+}
+
+
+// ---- picking ----------------------------------------------------------------------------------
+
+TEST(Picking, RaysAndProjectionsAgree) {
+  render::Camera camera;
+  camera.target = Vec3(1, 2, 3);
+  camera.distance = 7.0;
+  camera.yawDegrees = 20.0;
+  camera.pitchDegrees = 35.0;
+  const int w = 800, h = 500;
+  const Ray centre = rayThroughPixel(camera, w, h, 0.5 * w, 0.5 * h);
+  const Vec3 toTarget = camera.target - centre.origin;
+  EXPECT_LT((toTarget - toTarget.dot(centre.direction) * centre.direction).norm(), 1e-9);
+  for (const Vec3& p : {Vec3(1.5, 2.2, 2.5), Vec3(-0.5, 3.0, 3.4), Vec3(2, 1, 4)}) {
+    const auto px = projectToPixel(camera, w, h, p);
+    ASSERT_TRUE(px.has_value());
+    const Ray ray = rayThroughPixel(camera, w, h, px->x(), px->y());
+    const Vec3 r = p - ray.origin;
+    EXPECT_LT((r - r.dot(ray.direction) * ray.direction).norm(), 1e-9);
+  }
+  // Behind the eye: no pixel.
+  EXPECT_FALSE(projectToPixel(camera, w, h, camera.eye() + (camera.eye() - camera.target)).has_value());
+}
+
+TEST(Picking, RayHitsTheFaceUnderItAndItsNearestCorner) {
+  const Mesh grid = makeGrid(5);  // vertex (i, j) is i + 5 j at (i, j, 0)
+  Ray ray;
+  ray.origin = Vec3(2.3, 1.6, 5.0);
+  ray.direction = Vec3(0, 0, -1);
+  const auto hit = pickSurface(grid.faces(), grid.positions(), ray);
+  ASSERT_TRUE(hit.has_value());
+  EXPECT_NEAR(hit->distance, 5.0, 1e-12);
+  EXPECT_LT((hit->point - Vec3(2.3, 1.6, 0.0)).norm(), 1e-12);
+  EXPECT_EQ(hit->nearestCorner, 2 + 5 * 2);
+  EXPECT_GT(hit->normal.z(), 0.99);  // facing the ray's origin
+  // The face hit contains the point: (2..3) x (1..2).
+  for (Index v : grid.face(hit->face)) {
+    EXPECT_GE(grid.positions()(v, 0), 2.0);
+    EXPECT_LE(grid.positions()(v, 0), 3.0);
+    EXPECT_GE(grid.positions()(v, 1), 1.0);
+    EXPECT_LE(grid.positions()(v, 1), 2.0);
+  }
+  // From below the surface is hit too (open surfaces are picked from both sides).
+  ray.origin.z() = -5.0;
+  ray.direction = Vec3(0, 0, 1);
+  EXPECT_TRUE(pickSurface(grid.faces(), grid.positions(), ray).has_value());
+  // Beside the grid: nothing.
+  ray.origin = Vec3(7, 7, 5);
+  ray.direction = Vec3(0, 0, -1);
+  EXPECT_FALSE(pickSurface(grid.faces(), grid.positions(), ray).has_value());
+  // The nearest surface along the ray wins on a closed surface.
+  const Mesh torus = makeTorus(16, 16);
+  ray.origin = Vec3(10, 0, 0);
+  ray.direction = Vec3(-1, 0, 0);
+  const auto torusHit = pickSurface(torus.faces(), torus.positions(), ray);
+  ASSERT_TRUE(torusHit.has_value());
+  EXPECT_NEAR(torusHit->point.x(), 3.0, 0.05);
+}
+
+TEST(Picking, CurvesPickTheVertexNearestTheRay) {
+  const Mesh helix = makeHelix(32);
+  const Vec3 p = helix.positions().row(9).transpose();
+  Ray ray;
+  // From the side (from above, vertex 25 one turn up sits on the same vertical line).
+  ray.origin = p + Vec3(10.0, 0.0, 0.01);
+  ray.direction = Vec3(-1, 0, 0);
+  EXPECT_EQ(pickNearestVertex(helix.positions(), ray, 0.05), 9);
+  EXPECT_EQ(pickNearestVertex(helix.positions(), ray, 0.001), -1);
+  EXPECT_EQ(nearestVertex(helix.positions(), p + Vec3(0, 0, 0.01)), 9);
+}
+
+TEST(Picking, DragPlaneFacesTheCamera) {
+  render::Camera camera;
+  const Vec3 through(0.5, -0.2, 0.1);
+  const Ray ray = rayThroughPixel(camera, 640, 480, 100, 50);
+  const Vec3 q = onViewPlane(camera, ray, through);
+  const Vec3 forward = (camera.target - camera.eye()).normalized();
+  EXPECT_NEAR((q - through).dot(forward), 0.0, 1e-9);
+  const Vec3 r = q - ray.origin;
+  EXPECT_LT((r - r.dot(ray.direction) * ray.direction).norm(), 1e-9);
+}
+
+// ---- the window under Xvfb --------------------------------------------------------------------
+
+std::string readText(const fs::path& p) {
+  std::ifstream in(p);
+  return std::string(std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>());
+}
+
+// The window opens on the grid, a script drags a vertex (through picking and the drag tool)
+// and paints stiffness (through the paint tool), and screenshots show the model, the moved
+// vertex and the painted region in another colour.
+TEST(Window, ScriptedDragAndPaintUnderXvfb) {
+  if (std::system("command -v xvfb-run > /dev/null 2>&1") != 0) GTEST_SKIP() << "xvfb-run is not installed";
+  if (!fs::exists(ZSCULPT_BINARY)) GTEST_SKIP() << ZSCULPT_BINARY << " is not built";
+  const fs::path dir = tempDir("window");
+  const std::string command = std::string("xvfb-run -a -s \"-screen 0 1280x800x24\" ") + ZSCULPT_BINARY +
+                              " open builtin:grid --speed 10 --script " + ZSCULPT_TEST_DATA_DIR +
+                              "/app/drag_and_paint.jsonl --screenshot-out " + dir.string() +
+                              " --state-out " + (dir / "final_state.csv").string() + " --record " +
+                              (dir / "session.jsonl").string() + " > " + (dir / "log.txt").string() +
+                              " 2>&1";
+  ASSERT_EQ(std::system(command.c_str()), 0) << readText(dir / "log.txt");
+
+  const nlohmann::json log = nlohmann::json::parse(readText(dir / "script_log.json"));
+  std::map<std::string, nlohmann::json> probes;
+  for (const auto& entry : log) {
+    EXPECT_FALSE(entry.contains("error")) << entry.dump();
+    if (entry.contains("probe")) probes[entry.at("probe").get<std::string>()] = entry;
+  }
+  for (const char* name : {"drag_start", "drag_held", "paint_before", "paint_after", "far_before", "far_after"})
+    ASSERT_TRUE(probes.count(name)) << name;
+  auto position = [&](const char* name) {
+    const auto& p = probes[name].at("position");
+    return Vec3(p[0].get<double>(), p[1].get<double>(), p[2].get<double>());
+  };
+  // The dragged vertex moved (the cursor went 120 pixels up the screen).
+  EXPECT_GT((position("drag_held") - position("drag_start")).norm(), 0.5);
+  EXPECT_GT(position("drag_held").z(), 0.3);
+
+  const render::Image before = render::readPng((dir / "before_paint.png").string());
+  const render::Image after = render::readPng((dir / "after_paint.png").string());
+  ASSERT_EQ(before.width, after.width);
+  ASSERT_EQ(before.height, after.height);
+  auto pixelAt = [](const render::Image& image, const nlohmann::json& probe) {
+    const int x = static_cast<int>(probe.at("pixel")[0].get<double>());
+    const int y = static_cast<int>(probe.at("pixel")[1].get<double>());
+    EXPECT_TRUE(x >= 0 && x < image.width && y >= 0 && y < image.height);
+    const std::uint8_t* p = image.pixel(std::clamp(x, 0, image.width - 1), std::clamp(y, 0, image.height - 1));
+    return Eigen::Vector3d(p[0], p[1], p[2]);
+  };
+  // The model is in the picture: the painted vertex's pixel is not the background's.
+  const std::uint8_t* corner = before.pixel(2, 2);
+  const Eigen::Vector3d background(corner[0], corner[1], corner[2]);
+  EXPECT_GT((pixelAt(before, probes["paint_before"]) - background).cwiseAbs().sum(), 40.0);
+  // The painted region changed colour; far from it (paused: nothing moved) it did not.
+  EXPECT_GT((pixelAt(after, probes["paint_after"]) - pixelAt(before, probes["paint_before"])).cwiseAbs().sum(), 60.0);
+  EXPECT_LT((pixelAt(after, probes["far_after"]) - pixelAt(before, probes["far_before"])).cwiseAbs().sum(), 12.0);
+  EXPECT_DOUBLE_EQ(probes["paint_after"].at("scalar").get<double>(), 40.0);
+  EXPECT_DOUBLE_EQ(probes["paint_before"].at("scalar").get<double>(), 5.0);
+  EXPECT_TRUE(fs::exists(dir / "after_paint_window.png"));
+
+  // The saved scene carries the painted stiffness.
+  const io::SceneDescription scene = io::loadScene((dir / "sculpted.json").string());
+  const Model model = io::buildModel(scene, makeGrid(18));
+  EXPECT_DOUBLE_EQ(model.properties.stiffness[40], 40.0);
+  EXPECT_DOUBLE_EQ(model.properties.stiffness[300], 5.0);
+
+  // The recorded session replays to the state the window ended with, bit for bit.
+  const Recording recording = readRecording((dir / "session.jsonl").string());
+  const ReplayResult replayed = replay(recording);
+  ASSERT_TRUE(replayed.matchesRecording.has_value());
+  EXPECT_TRUE(*replayed.matchesRecording);
+  const State final = io::loadState((dir / "final_state.csv").string(), 324);
+  EXPECT_TRUE(sameBits(final.position, replayed.finalState.position));
+  fs::remove_all(dir);
+}
+
+}  // namespace
+}  // namespace zsculpt::app
