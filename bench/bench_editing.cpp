@@ -97,11 +97,15 @@ void runDabs(benchmark::State& bench, Matrices which, DistanceKind distance) {
   if (matrices) bench.counters["t_max"] = matrices->criticalPeriod();
 }
 
-void BM_DabProperties(benchmark::State& s) { runDabs(s, Matrices::None, DistanceKind::Surface); }
+void BM_DabProperties(benchmark::State& s) {
+  runDabs(s, Matrices::None, DistanceKind::Surface);
+}
 void BM_DabSystemMatrices(benchmark::State& s) {
   runDabs(s, Matrices::System, DistanceKind::Surface);
 }
-void BM_DabAllMatrices(benchmark::State& s) { runDabs(s, Matrices::All, DistanceKind::Surface); }
+void BM_DabAllMatrices(benchmark::State& s) {
+  runDabs(s, Matrices::All, DistanceKind::Surface);
+}
 void BM_DabEuclidean(benchmark::State& s) {
   runDabs(s, Matrices::System, DistanceKind::Euclidean);
 }

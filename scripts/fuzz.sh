@@ -7,7 +7,8 @@
 #   scripts/fuzz.sh [TARGET...]        TARGET: scene mesh state cli (default: all four)
 #
 # Environment: FUZZ_SECONDS (default 60 per target), FUZZ_BUILD_DIR (default build-fuzz),
-# FUZZ_JOBS (build jobs, default 2), FUZZ_ARGS (extra libFuzzer flags).
+# FUZZ_JOBS (build jobs, default 2), FUZZ_ARGS (extra libFuzzer flags), FUZZ_NO_BUILD=1
+# (run the targets as they are built).
 # Needs clang, libclang-rt-14-dev and libomp-dev: scripts/install-deps.sh --reliability.
 set -euo pipefail
 root="$(cd "$(dirname "$0")/.." && pwd)"
@@ -21,10 +22,12 @@ for t in "${targets[@]}"; do
   case "$t" in scene|mesh|state|cli) ;; *) echo "fuzz: error: $t: unknown target (scene mesh state cli)" >&2; exit 2 ;; esac
 done
 
-CC=clang CXX=clang++ cmake -S "$root" -B "$build" -DCMAKE_BUILD_TYPE=RelWithDebInfo \
-  -DZSCULPT_BUILD_FUZZERS=ON -DZSCULPT_BUILD_TESTS=OFF -DZSCULPT_BUILD_BENCHMARKS=OFF \
-  -DZSCULPT_WERROR=OFF >/dev/null
-cmake --build "$build" -j "$jobs" --target "${targets[@]/#/fuzz_}"
+if [ "${FUZZ_NO_BUILD:-0}" != 1 ]; then
+  CC=clang CXX=clang++ cmake -S "$root" -B "$build" -DCMAKE_BUILD_TYPE=RelWithDebInfo \
+    -DZSCULPT_BUILD_FUZZERS=ON -DZSCULPT_BUILD_TESTS=OFF -DZSCULPT_BUILD_BENCHMARKS=OFF \
+    -DZSCULPT_WERROR=OFF >/dev/null
+  cmake --build "$build" -j "$jobs" --target "${targets[@]/#/fuzz_}"
+fi
 
 # One OpenMP thread: the fuzzers measure inputs, not speed, and stay within one core.
 export OMP_NUM_THREADS=1

@@ -638,7 +638,7 @@ TEST(Window, ScriptedDragAndPaintUnderXvfb) {
   if (!fs::exists(ZSCULPT_BINARY)) GTEST_SKIP() << ZSCULPT_BINARY << " is not built";
   const fs::path dir = tempDir("window");
   const std::string command = std::string("xvfb-run -a -s \"-screen 0 1280x800x24\" ") + ZSCULPT_BINARY +
-                              " open builtin:grid --speed 10 --script " + ZSCULPT_TEST_DATA_DIR +
+                              " open builtin:grid --damping 0.05 --speed 4 --script " + ZSCULPT_TEST_DATA_DIR +
                               "/app/drag_and_paint.jsonl --screenshot-out " + dir.string() +
                               " --state-out " + (dir / "final_state.csv").string() + " --record " +
                               (dir / "session.jsonl").string() + " > " + (dir / "log.txt").string() +

@@ -89,7 +89,8 @@ State perturbed(const Mesh& mesh, double amplitude, unsigned seed) {
   return s;
 }
 
-Model makeModel(Mesh mesh, double angular = 0.3, double cap = std::numeric_limits<double>::infinity()) {
+Model makeModel(Mesh mesh, double angular = 0.3,
+                double cap = std::numeric_limits<double>::infinity()) {
   UniformProperties u;
   u.mass = 0.5;
   u.stiffness = 5.0;
@@ -144,10 +145,17 @@ class RandomEdits {
     const PropertyRange range = propertyRange(b.property);
     const double top = std::isfinite(range.max) ? range.max : 10.0;
     switch (b.mode) {
-      case BrushMode::Set: b.value = uniform(0.05 * top, top); break;
-      case BrushMode::Add: b.value = uniform(-0.3, 1.0) * 0.2 * top; break;
-      case BrushMode::Multiply: b.value = uniform(0.5, 1.8); break;
-      case BrushMode::Smooth: break;
+      case BrushMode::Set:
+        b.value = uniform(0.05 * top, top);
+        break;
+      case BrushMode::Add:
+        b.value = uniform(-0.3, 1.0) * 0.2 * top;
+        break;
+      case BrushMode::Multiply:
+        b.value = uniform(0.5, 1.8);
+        break;
+      case BrushMode::Smooth:
+        break;
     }
     if (b.property == Property::RestLength && b.mode == BrushMode::Set) b.value *= 0.3 * scale_;
     return b;
@@ -228,8 +236,8 @@ PropertyTestStats runPropertyTest(Model model, unsigned seed) {
 // ---- falloff and brush footprint ------------------------------------------------------------
 
 TEST(Falloff, CurvesGoFromOneAtTheCentreToZeroAtTheRadius) {
-  for (Falloff f : {Falloff::Smooth, Falloff::Sphere, Falloff::Linear, Falloff::Sharp,
-                    Falloff::Constant}) {
+  for (Falloff f :
+       {Falloff::Smooth, Falloff::Sphere, Falloff::Linear, Falloff::Sharp, Falloff::Constant}) {
     EXPECT_EQ(falloffWeight(f, 0.0), 1.0) << falloffName(f);
     EXPECT_EQ(falloffWeight(f, 1.0), 0.0) << falloffName(f);
     EXPECT_EQ(falloffWeight(f, 2.0), 0.0) << falloffName(f);
@@ -405,7 +413,8 @@ TEST(Locality, ListedRowsAreTheRowsThatChangeAndStayNearTheDab) {
     brush.mode = property == Property::Rigidity ? BrushMode::Add : BrushMode::Multiply;
     brush.value = property == Property::Rigidity ? 0.3 : 0.9;
     brush.radius = 0.8;
-    const EditResult r = editor.apply(EditTarget::of(model), rest, Dab{brush, BrushCentre::atVertex(30)});
+    const EditResult r =
+        editor.apply(EditTarget::of(model), rest, Dab{brush, BrushCentre::atVertex(30)});
     ASSERT_TRUE(r.changed) << propertyName(property);
     const SystemMatrices after(model);
     const std::set<Index> listed(r.matrixRows.begin(), r.matrixRows.end());
@@ -419,7 +428,8 @@ TEST(Locality, ListedRowsAreTheRowsThatChangeAndStayNearTheDab) {
                         after.dampingCoefficient()[i] != before.dampingCoefficient()[i];
       for (Index p = after.stiffness().outerIndexPtr()[i];
            p < after.stiffness().outerIndexPtr()[i + 1]; ++p)  // same pattern before and after
-        rowChanged = rowChanged || after.stiffness().valuePtr()[p] != before.stiffness().valuePtr()[p] ||
+        rowChanged = rowChanged ||
+                     after.stiffness().valuePtr()[p] != before.stiffness().valuePtr()[p] ||
                      after.omega2().valuePtr()[p] != before.omega2().valuePtr()[p];
       if (rowChanged) {
         EXPECT_TRUE(listed.count(i)) << propertyName(property) << " row " << i;
@@ -438,17 +448,23 @@ TEST(PropertyTest, ThousandRandomEditsOnTheTorusEqualAFullRebuild) {
   const PropertyTestStats s = runPropertyTest(makeModel(makeTorus(10, 10)), 1);
   EXPECT_GT(s.applied, 600);
   EXPECT_GT(s.refused, 0);  // some adds and multiplies leave a range
-  RecordProperty("worst_difference", std::to_string(s.worstDifference));
+  RecordProperty("worst_difference", formatNumber(s.worstDifference));
+  RecordProperty("applied", s.applied);
+  RecordProperty("refused", s.refused);
 }
 
 TEST(PropertyTest, ThousandRandomEditsOnTheGridWithAStiffnessCapEqualAFullRebuild) {
   const PropertyTestStats s = runPropertyTest(makeModel(makeGrid(18), 0.3, 8.0), 2);
   EXPECT_GT(s.applied, 600);
+  RecordProperty("worst_difference", formatNumber(s.worstDifference));
+  RecordProperty("applied", s.applied);
 }
 
 TEST(PropertyTest, ThousandRandomEditsOnNonManifoldFinsEqualAFullRebuild) {
   const PropertyTestStats s = runPropertyTest(makeModel(makeFins()), 3);
   EXPECT_GT(s.applied, 500);
+  RecordProperty("worst_difference", formatNumber(s.worstDifference));
+  RecordProperty("applied", s.applied);
 }
 
 TEST(CriticalPeriod, TrackerFollowsLocalEditsExactly) {
@@ -484,7 +500,8 @@ TEST(Undo, RestoresMatricesBitForBitAndRedoReplays) {
   brush.property = Property::Mass;
   brush.mode = BrushMode::Multiply;
   brush.value = 3.0;
-  EditResult edit = editor.apply(EditTarget::of(model), state, Dab{brush, BrushCentre::atVertex(5)});
+  EditResult edit =
+      editor.apply(EditTarget::of(model), state, Dab{brush, BrushCentre::atVertex(5)});
   matrices.update(model, edit.matrixRows);
   const MatrixSnapshot edited(matrices);
   EXPECT_FALSE(start.identicalTo(matrices));
@@ -534,7 +551,8 @@ TEST(Energy, StiffnessDabAtRestStoresNothingAndLeavesEveryVertexAtRest) {
     brush.property = Property::Stiffness;
     brush.value = 10.0;  // T_max shrinks by about sqrt(2): the period stays stable
     brush.radius = 1.5;
-    const EditResult r = editor.apply(EditTarget::of(model), state, Dab{brush, BrushCentre::atVertex(42)});
+    const EditResult r =
+        editor.apply(EditTarget::of(model), state, Dab{brush, BrushCentre::atVertex(42)});
     ASSERT_TRUE(r.changed);
     EXPECT_EQ(r.energy.potential, 0.0);
     EXPECT_EQ(r.energy.kinetic, 0.0);
@@ -572,7 +590,8 @@ TEST(Energy, ReportedChangeEqualsTheFullEnergyDifference) {
     EXPECT_NEAR(r.energy.potential, after.potential.total() - before.potential.total(),
                 1e-12 * magnitude)
         << describe(command);
-    EXPECT_NEAR(r.energy.kinetic, after.kinetic - before.kinetic, 1e-12 * (before.kinetic + after.kinetic))
+    EXPECT_NEAR(r.energy.kinetic, after.kinetic - before.kinetic,
+                1e-12 * (before.kinetic + after.kinetic))
         << describe(command);
     ++checked;
   }
@@ -715,8 +734,8 @@ TEST(EditQueue, ProducersOnOtherThreadsAndTheSolverApplyingBetweenCycles) {
 }
 
 TEST(Schedule, DueEditsInTimeOrderWithListOrderForTies) {
-  std::vector<TimedEdit> edits = {{1.0, ScaleRest{1.0}}, {0.2, Relax{}}, {1.0, Undo{}},
-                                  {2.0, Redo{}}};
+  std::vector<TimedEdit> edits = {
+      {1.0, ScaleRest{1.0}}, {0.2, Relax{}}, {1.0, Undo{}}, {2.0, Redo{}}};
   EditSchedule schedule(edits);
   EXPECT_TRUE(schedule.due(0.1).empty());
   auto due = schedule.due(0.3);

@@ -5,6 +5,7 @@
 #include <cmath>
 #include <filesystem>
 #include <fstream>
+#include <iostream>
 
 #define GLFW_INCLUDE_NONE
 #include <GLFW/glfw3.h>
@@ -280,6 +281,8 @@ void Window::layout() {
 
 void Window::message(std::string text) {
   if (text.empty()) return;
+  // A scripted session has no one watching the panel: messages go to the terminal too.
+  if (scripted_) std::cerr << "zsculpt: " << text << "\n";
   log_.push_back(std::move(text));
   while (log_.size() > 200) log_.pop_front();
 }
@@ -301,10 +304,14 @@ void Window::drawFrame() {
   ImGui_ImplOpenGL3_NewFrame();
   ImGui_ImplGlfw_NewFrame();
   ImGui::NewFrame();
-  if (scripted_) stepScript();
-  if (!solver_) return;  // a script opened nothing; defensive
-  readImGuiInput();
-  shortcuts();
+  if (scripted_) {
+    // The script is the only user: the real pointer (Xvfb parks it mid-screen) must not
+    // move the tools or the camera.
+    stepScript();
+  } else {
+    readImGuiInput();
+    shortcuts();
+  }
   panels();
   overlays(solver_->current());
   ImGui::Render();

@@ -21,6 +21,11 @@ const std::vector<std::pair<std::string, std::function<int(const ReproduceOption
           {"table1", reproduceTable1},
           {"figure3", reproduceFigure3},
           {"figure5", reproduceFigure5},
+          {"figure6", reproduceFigure6},
+          {"figure7", reproduceFigure7},
+          {"figure8", reproduceFigure8},
+          {"figure9", reproduceFigure9},
+          {"figure10", reproduceFigure10},
       };
   return list;
 }

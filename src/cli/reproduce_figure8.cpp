@@ -90,10 +90,9 @@ int reproduceFigure8(const ReproduceOptions& options) {
   sim.propertiesChanged(blueResult.matrixRows);
   const double storedEnergy = redResult.energy.total() + blueResult.energy.total();
   const double tMaxAfter = criticalPeriod(sim.stepper().system());
-  const double matrixDifference =
-      editing::verifyAgainstRebuild(sim.model(), sim.stepper().system(),
-                                    sim.stepper().transformation())
-          .maxAbs();
+  const double matrixDifference = editing::verifyAgainstRebuild(sim.model(), sim.stepper().system(),
+                                                                sim.stepper().transformation())
+                                      .maxAbs();
 
   // Simulate until at rest.
   const double startForce = maxForce(sim.model(), sim.state().position);
@@ -105,8 +104,8 @@ int reproduceFigure8(const ReproduceOptions& options) {
   Diagnostics d = sim.diagnostics();
   const double startPotential = d.potential.total();
   auto row = [&]() {
-    energyCsv << step << ',' << sim.time() << ',' << d.kinetic << ',' << d.potential.radial
-              << ',' << d.potential.angular << ',' << d.total() << '\n';
+    energyCsv << step << ',' << sim.time() << ',' << d.kinetic << ',' << d.potential.radial << ','
+              << d.potential.angular << ',' << d.total() << '\n';
   };
   row();
   while (sim.time() < maxTime) {
@@ -139,24 +138,30 @@ int reproduceFigure8(const ReproduceOptions& options) {
   }
   for (Index k = m.angles.vertexOffsets[1]; k < m.angles.vertexOffsets[2]; ++k) {
     const auto [c, a, b] = m.angles.angles[static_cast<size_t>(k)];
-    const double excess = angleAt(final.row(c), final.row(a), final.row(b)) - m.properties.restAngle[k];
+    const double excess =
+        angleAt(final.row(c), final.row(a), final.row(b)) - m.properties.restAngle[k];
     angularAtBlue += 0.5 * m.properties.angularStiffness[c] * excess * excess;
   }
   double redDisplacement = 0.0;
-  for (Index v : redPoints) redDisplacement = std::max(redDisplacement, (final.row(v) - rest.row(v)).norm());
+  for (Index v : redPoints)
+    redDisplacement = std::max(redDisplacement, (final.row(v) - rest.row(v)).norm());
   const double blueDisplacement = (final.row(1) - rest.row(1)).norm();
   double farDisplacement = 0.0;  // the far side of the torus (u = 5)
   for (Index v = 0; v < 10; ++v)
-    farDisplacement = std::max(farDisplacement, (final.row(5 + 10 * v) - rest.row(5 + 10 * v)).norm());
+    farDisplacement =
+        std::max(farDisplacement, (final.row(5 + 10 * v) - rest.row(5 + 10 * v)).norm());
 
   std::ostringstream shape;
   shape << std::setprecision(12) << "vertex,x0,y0,z0,x,y,z,displacement,role\n";
   for (Index v = 0; v < m.mesh.numVertices(); ++v) {
     const char r = role[static_cast<size_t>(v)];
-    shape << v << ',' << rest(v, 0) << ',' << rest(v, 1) << ',' << rest(v, 2) << ','
-          << final(v, 0) << ',' << final(v, 1) << ',' << final(v, 2) << ','
-          << (final.row(v) - rest.row(v)).norm() << ','
-          << (r == 'r' ? "rest_length" : r == 'b' ? "rest_angle" : "") << '\n';
+    shape << v << ',' << rest(v, 0) << ',' << rest(v, 1) << ',' << rest(v, 2) << ',' << final(v, 0)
+          << ',' << final(v, 1) << ',' << final(v, 2) << ',' << (final.row(v) - rest.row(v)).norm()
+          << ','
+          << (r == 'r'   ? "rest_length"
+              : r == 'b' ? "rest_angle"
+                         : "")
+          << '\n';
   }
   std::ostringstream json;
   json << "{\n"
@@ -194,24 +199,23 @@ int reproduceFigure8(const ReproduceOptions& options) {
   io::writeFileAtomically(shapePath, [&](std::ostream& out) { out << shape.str(); });
   io::writeFileAtomically(jsonPath, [&](std::ostream& out) { out << json.str(); });
 
-  std::cout << std::setprecision(4)
-            << "figure 8: Torus-I, rest lengths x1.5 at the red points {";
+  std::cout << std::setprecision(4) << "figure 8: Torus-I, rest lengths x1.5 at the red points {";
   for (size_t k = 0; k < redPoints.size(); ++k) std::cout << (k ? ", " : "") << redPoints[k];
-  std::cout << "} (" << redEdges << " edges), rest angles x0.8 at the blue point 1 ("
-            << blueAngles << " angles)\n"
+  std::cout << "} (" << redEdges << " edges), rest angles x0.8 at the blue point 1 (" << blueAngles
+            << " angles)\n"
             << "  matrix rows updated by the edits: " << redRows + blueRows
             << " (rest values never reach K); T_max " << tMax << " -> " << tMaxAfter << " s\n"
             << "  energy stored by the edits at the rest shape: " << storedEnergy << " J\n"
             << "  " << (settledAt >= 0.0 ? "at rest after " : "not at rest after ")
             << (settledAt >= 0.0 ? settledAt : sim.time()) << " s (" << step
             << " steps); largest force " << startForce << " -> " << endForce << " N\n"
-            << "  internal stress at rest: radial " << d.potential.radial << " J ("
-            << radialNearRed << " J at the red points' edges), angular " << d.potential.angular
-            << " J (" << angularAtBlue << " J at the blue point)\n"
+            << "  internal stress at rest: radial " << d.potential.radial << " J (" << radialNearRed
+            << " J at the red points' edges), angular " << d.potential.angular << " J ("
+            << angularAtBlue << " J at the blue point)\n"
             << "  paper: the stress stays non-zero because the rest-length and rest-angle "
                "springs oppose each other: "
             << (d.potential.radial > 0.0 && d.potential.angular > 0.0 ? "reproduced"
-                                                                       : "NOT reproduced")
+                                                                      : "NOT reproduced")
             << "\n"
             << "  displacement: red " << redDisplacement << ", blue " << blueDisplacement
             << ", far side " << farDisplacement << " m\n"

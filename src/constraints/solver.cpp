@@ -3,7 +3,6 @@
 #include <Eigen/Eigenvalues>
 #include <algorithm>
 #include <cmath>
-#include <cstdlib>
 #include <numbers>
 
 #include "zsculpt/core/errors.h"
@@ -179,6 +178,16 @@ void ConstraintSolver::setUp(const Mesh& mesh, const ConstraintSet& constraints)
       planes_.push_back(std::move(plane));
     }
   }
+  // The halo: the support and its one-ring (where the filtered kick of a virtual force lands).
+  halo_ = support_;
+  for (Index v : support_)
+    for (Index w : mesh.vertexNeighbors(v)) halo_.push_back(w);
+  std::sort(halo_.begin(), halo_.end());
+  halo_.erase(std::unique(halo_.begin(), halo_.end()), halo_.end());
+  haloOf_.resize(support_.size());
+  for (size_t a = 0; a < support_.size(); ++a)
+    haloOf_[a] = static_cast<Index>(std::lower_bound(halo_.begin(), halo_.end(), support_[a]) -
+                                    halo_.begin());
   pinForce_.assign(pins_.size(), Vec3::Zero());
   couple_.assign(planes_.size(), Vec3::Zero());
   const Index s = static_cast<Index>(support_.size());
@@ -186,10 +195,12 @@ void ConstraintSolver::setUp(const Mesh& mesh, const ConstraintSet& constraints)
   predicted_.setZero(s, 3);
   supportEnd_.setZero(s, 3);
   points_.reserve(largestPlane);
-  const Index unknownCount = 3 * static_cast<Index>(pins_.size() + planes_.size());
-  jacobian_.setZero(unknownCount, unknownCount);
-  factor_ = Eigen::CompleteOrthogonalDecomposition<Eigen::MatrixXd>(unknownCount, unknownCount);
-  for (VectorX* v : {&rhs_, &step_, &base_, &trial_, &shifted_}) v->setZero(unknownCount);
+  const Index residuals = 3 * static_cast<Index>(pins_.size() + planes_.size());
+  const Index unknownCount = 3 * static_cast<Index>(pins_.size()) + 2 * static_cast<Index>(planes_.size());
+  jacobian_.setZero(residuals, unknownCount);
+  factor_ = Eigen::CompleteOrthogonalDecomposition<Eigen::MatrixXd>(residuals, unknownCount);
+  for (VectorX* v : {&rhs_, &shifted_}) v->setZero(residuals);
+  for (VectorX* v : {&step_, &base_, &trial_}) v->setZero(unknownCount);
 }
 
 Index ConstraintSolver::local(Index vertex) const {
@@ -221,6 +232,12 @@ void ConstraintSolver::beginStep(const Mesh& mesh, const ConstraintSet& constrai
       plane.inertia += plane.mass[k] * armInertia(plane.arm[k]);
       plane.radius += plane.arm[k].norm() / static_cast<double>(plane.locals.size());
     }
+    // Two directions across the target normal: the couple turns the plane about them.
+    const Vec3 target = constraints.get(plane.id).value;
+    Index axis = 0;
+    target.cwiseAbs().minCoeff(&axis);
+    plane.across.col(0) = target.cross(Vec3::Unit(axis)).normalized();
+    plane.across.col(1) = target.cross(Vec3(plane.across.col(0)));
     // Orientation of the fitted plane this step: the faces' where the vertex has faces,
     // else continuity with the last step (a curve), so the normal never flips.
     const Index vertex = constraints.get(plane.id).vertex;
@@ -326,14 +343,17 @@ double ConstraintSolver::residual(const ConstraintSet& constraints, const StepRe
 }
 
 void ConstraintSolver::unknowns(VectorX& x) const {
+  // Pin forces (3 each), then each couple's two components across the target normal (a
+  // turn about the normal itself does not move it: leaving it out keeps the problem
+  // well-posed).
   Index row = 0;
   for (const Vec3& f : pinForce_) {
     x.segment<3>(row) = f;
     row += 3;
   }
-  for (const Vec3& l : couple_) {
-    x.segment<3>(row) = l;
-    row += 3;
+  for (size_t q = 0; q < planes_.size(); ++q) {
+    x[row++] = planes_[q].across.col(0).dot(couple_[q]);
+    x[row++] = planes_[q].across.col(1).dot(couple_[q]);
   }
 }
 
@@ -343,9 +363,9 @@ void ConstraintSolver::setUnknowns(const VectorX& x) {
     f = x.segment<3>(row);
     row += 3;
   }
-  for (Vec3& l : couple_) {
-    l = x.segment<3>(row);
-    row += 3;
+  for (size_t q = 0; q < planes_.size(); ++q) {
+    couple_[q] = x[row] * planes_[q].across.col(0) + x[row + 1] * planes_[q].across.col(1);
+    row += 2;
   }
 }
 
@@ -357,15 +377,15 @@ void ConstraintSolver::solve(const ConstraintSet& constraints, const StepRespons
   // which turns of the plane are reachable at all) is part of it. The least-squares step of
   // minimum norm leaves unreachable directions alone instead of letting their forces grow.
   constexpr int kIterations = 20;
-  const Index n = static_cast<Index>(3 * (pins_.size() + planes_.size()));
+  const Index n = static_cast<Index>(3 * pins_.size() + 2 * planes_.size());
   if (n == 0) return;
   double positionError = 0.0, normalError = 0.0;
   double cost = residual(constraints, response, rhs_, positionError, normalError);
   for (int iteration = 0; iteration < kIterations; ++iteration) {
     if (positionError <= positionTolerance && normalError <= normalTolerance) break;
     unknowns(base_);
+    const double scale = base_.cwiseAbs().maxCoeff();
     for (Index c = 0; c < n; ++c) {
-      const double scale = base_.segment<3>(3 * (c / 3)).cwiseAbs().maxCoeff();
       const double h = 1e-7 * std::max(1.0, scale);
       trial_ = base_;
       trial_[c] += h;
@@ -400,50 +420,78 @@ void ConstraintSolver::solve(const ConstraintSet& constraints, const StepRespons
   assembleForces();
 }
 
-void ConstraintSolver::velocityCorrection(const ConstraintSet& constraints,
+void ConstraintSolver::velocityCorrection(const ConstraintSet& constraints, const Stepper& stepper,
                                           const Points& startPosition, const Points& endPosition,
                                           const Points& velocity, const VectorX& mass,
-                                          std::span<const double> share, double period,
-                                          Points& delta) const {
-  delta.setZero(static_cast<Index>(support_.size()), 3);
+                                          std::span<const double> share, Points& delta) const {
+  const double t = stepper.period();
+  delta.setZero(static_cast<Index>(halo_.size()), 3);
   auto sigma = [&](Index v) { return share.empty() ? 1.0 : share[static_cast<size_t>(v)]; };
+  // 1. The virtual forces act as an impulse at the start of the cycle: they are what moves
+  // the constrained vertices, and their velocity is what that motion needs, no more. The
+  // stepper held them over both half kicks; take the second one back. Default scheme: it
+  // was (T/2) Phi sigma M^-1 f, Phi = 1 - T^2 Omega^2 / 12 (over the support and its one
+  // ring). Symplectic Euler kicks once before it drifts: nothing to take back. Other
+  // schemes: (T/2) sigma M^-1 f on the support (the same to first order).
+  if (stepper.scheme() != Scheme::SymplecticEuler) {
+    const SparseRowMatrix& o2 = stepper.system().omega2();
+    const bool filtered = stepper.scheme() == Scheme::Default;
+    for (size_t h = 0; h < halo_.size(); ++h) {
+      const Index j = halo_[h];
+      const Index own = local(j);
+      Vec3 kick = own >= 0 ? Vec3(sigma(j) / mass[j] * forces_.row(own).transpose()) : Vec3::Zero();
+      if (filtered) {
+        Vec3 spread = Vec3::Zero();
+        for (Index k = o2.outerIndexPtr()[j]; k < o2.outerIndexPtr()[j + 1]; ++k) {
+          const Index l = o2.innerIndexPtr()[k];
+          const Index other = local(l);
+          if (other >= 0) spread += o2.valuePtr()[k] * sigma(l) / mass[l] * forces_.row(other).transpose();
+        }
+        kick -= t * t / 12.0 * spread;
+      }
+      delta.row(static_cast<Index>(h)) = (-0.5 * t * kick).transpose();
+    }
+  }
+  auto current = [&](Index v) -> Vec3 {
+    return (velocity.row(v) + delta.row(haloOf_[static_cast<size_t>(local(v))])).transpose();
+  };
+  // 2. A constrained plane does not turn across its normal: its angular velocity about its
+  // centre of mass (least squares), less the part about the normal, is removed.
   for (const Plane& plane : planes_) {
-    if (getenv("ZS_NOPLANEFIX")) break;
-    // The plane's angular velocity about its centre of mass (least squares), minus its
-    // part about the normal, is removed: a pure couple of impulses.
     double total = 0.0;
     Vec3 centre = Vec3::Zero(), mean = Vec3::Zero();
-    for (size_t k = 0; k < plane.locals.size(); ++k) {
-      const Index v = support_[static_cast<size_t>(plane.locals[k])];
+    for (Index l : plane.locals) {
+      const Index v = support_[static_cast<size_t>(l)];
       total += mass[v];
       centre += mass[v] * endPosition.row(v).transpose();
-      mean += mass[v] * (velocity.row(v) + delta.row(plane.locals[k])).transpose();
+      mean += mass[v] * current(v);
     }
     centre /= total;
     mean /= total;
     Mat3 inertia = Mat3::Zero();
     Vec3 angular = Vec3::Zero();
-    for (size_t k = 0; k < plane.locals.size(); ++k) {
-      const Index v = support_[static_cast<size_t>(plane.locals[k])];
+    for (Index l : plane.locals) {
+      const Index v = support_[static_cast<size_t>(l)];
       const Vec3 arm = endPosition.row(v).transpose() - centre;
       inertia += mass[v] * armInertia(arm);
-      angular += mass[v] * arm.cross(Vec3((velocity.row(v) + delta.row(plane.locals[k])).transpose()) - mean);
+      angular += mass[v] * arm.cross(current(v) - mean);
     }
     Vec3 omega = pseudoInverse(inertia) * angular;
     const Vec3 normal = constraints.get(plane.id).value;
     omega -= omega.dot(normal) * normal;
-    for (size_t k = 0; k < plane.locals.size(); ++k) {
-      const Index v = support_[static_cast<size_t>(plane.locals[k])];
+    for (Index l : plane.locals) {
+      const Index v = support_[static_cast<size_t>(l)];
       if (!(sigma(v) > 0.0)) continue;
       const Vec3 arm = endPosition.row(v).transpose() - centre;
-      delta.row(plane.locals[k]) -= omega.cross(arm).transpose();
+      delta.row(haloOf_[static_cast<size_t>(l)]) -= omega.cross(arm).transpose();
     }
   }
+  // 3. A pinned vertex moves as its target did over the cycle.
   for (const Pin& pin : pins_) {
     const Index v = support_[static_cast<size_t>(pin.local)];
     if (!(sigma(v) > 0.0)) continue;
-    const Eigen::RowVector3d wanted = (endPosition.row(v) - startPosition.row(v)) / period;
-    delta.row(pin.local) = wanted - velocity.row(v);
+    const Eigen::RowVector3d wanted = (endPosition.row(v) - startPosition.row(v)) / t;
+    delta.row(haloOf_[static_cast<size_t>(pin.local)]) = wanted - velocity.row(v);
   }
 }
 

@@ -3,10 +3,10 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdlib>
-#include <iomanip>
-#include <sstream>
 #include <functional>
+#include <iomanip>
 #include <limits>
+#include <sstream>
 #include <string>
 
 #include "zsculpt/core/errors.h"
@@ -30,37 +30,48 @@ Enum fromName(std::string_view name, const Enum (&all)[N], std::string_view (*na
 
 constexpr BrushMode kModes[] = {BrushMode::Set, BrushMode::Add, BrushMode::Multiply,
                                 BrushMode::Smooth};
-constexpr Falloff kFalloffs[] = {Falloff::Smooth, Falloff::Sphere, Falloff::Linear,
-                                 Falloff::Sharp, Falloff::Constant};
+constexpr Falloff kFalloffs[] = {Falloff::Smooth, Falloff::Sphere, Falloff::Linear, Falloff::Sharp,
+                                 Falloff::Constant};
 constexpr DistanceKind kDistances[] = {DistanceKind::Surface, DistanceKind::Euclidean};
 
 }  // namespace
 
 std::string_view brushModeName(BrushMode mode) {
   switch (mode) {
-    case BrushMode::Set: return "set";
-    case BrushMode::Add: return "add";
-    case BrushMode::Multiply: return "multiply";
-    case BrushMode::Smooth: return "smooth";
+    case BrushMode::Set:
+      return "set";
+    case BrushMode::Add:
+      return "add";
+    case BrushMode::Multiply:
+      return "multiply";
+    case BrushMode::Smooth:
+      return "smooth";
   }
   return "?";
 }
 
 std::string_view falloffName(Falloff falloff) {
   switch (falloff) {
-    case Falloff::Smooth: return "smooth";
-    case Falloff::Sphere: return "sphere";
-    case Falloff::Linear: return "linear";
-    case Falloff::Sharp: return "sharp";
-    case Falloff::Constant: return "constant";
+    case Falloff::Smooth:
+      return "smooth";
+    case Falloff::Sphere:
+      return "sphere";
+    case Falloff::Linear:
+      return "linear";
+    case Falloff::Sharp:
+      return "sharp";
+    case Falloff::Constant:
+      return "constant";
   }
   return "?";
 }
 
 std::string_view distanceKindName(DistanceKind kind) {
   switch (kind) {
-    case DistanceKind::Surface: return "surface";
-    case DistanceKind::Euclidean: return "euclidean";
+    case DistanceKind::Surface:
+      return "surface";
+    case DistanceKind::Euclidean:
+      return "euclidean";
   }
   return "?";
 }
@@ -92,11 +103,16 @@ double falloffWeight(Falloff falloff, double t) {
   if (!(t < 1.0)) return 0.0;  // also NaN
   const double p = 1.0 - std::max(t, 0.0);
   switch (falloff) {
-    case Falloff::Smooth: return p * p * (3.0 - 2.0 * p);
-    case Falloff::Sphere: return std::sqrt(p * (2.0 - p));
-    case Falloff::Linear: return p;
-    case Falloff::Sharp: return p * p;
-    case Falloff::Constant: return 1.0;
+    case Falloff::Smooth:
+      return p * p * (3.0 - 2.0 * p);
+    case Falloff::Sphere:
+      return std::sqrt(p * (2.0 - p));
+    case Falloff::Linear:
+      return p;
+    case Falloff::Sharp:
+      return p * p;
+    case Falloff::Constant:
+      return 1.0;
   }
   return 0.0;
 }
@@ -107,15 +123,14 @@ void Brush::validate(bool needRadius) const {
     checkPropertyValue(property, value, "brush value");
   } else if (mode == BrushMode::Multiply) {
     if (!std::isfinite(value) || value < 0.0)
-      throw InvalidInputError("brush value: multiply factor " + formatNumber(value) +
-                              " for " + name + " must be finite and >= 0");
+      throw InvalidInputError("brush value: multiply factor " + formatNumber(value) + " for " +
+                              name + " must be finite and >= 0");
   } else if (mode == BrushMode::Add) {
     if (!std::isfinite(value))
       throw InvalidInputError("brush value: add amount for " + name + " must be finite");
   }
   if (!(strength >= 0.0 && strength <= 1.0))
-    throw InvalidInputError("brush strength: " + formatNumber(strength) +
-                            " is outside [0, 1]");
+    throw InvalidInputError("brush strength: " + formatNumber(strength) + " is outside [0, 1]");
   if (needRadius && !(radius > 0.0 && std::isfinite(radius)))
     throw InvalidInputError("brush radius: " + formatNumber(radius) +
                             " must be positive and finite");
@@ -202,7 +217,9 @@ void BrushRegion::surface(const Mesh& mesh, const Points& position, const BrushC
     if (d < radius) reach(v, d);
   };
   switch (centre.kind) {
-    case BrushCentre::Kind::Vertex: reach(centre.vertex, 0.0); break;
+    case BrushCentre::Kind::Vertex:
+      reach(centre.vertex, 0.0);
+      break;
     case BrushCentre::Kind::FacePoint:
       for (Index v : mesh.face(centre.face)) seed(v);
       break;
@@ -222,7 +239,7 @@ void BrushRegion::surface(const Mesh& mesh, const Points& position, const BrushC
     const auto [d, v] = heap_.back();
     heap_.pop_back();
     if (d > distanceByVertex_[static_cast<size_t>(v)]) continue;  // stale entry
-    vertices_.push_back(v);  // settled: increasing distance
+    vertices_.push_back(v);                                       // settled: increasing distance
     distances_.push_back(d);
     const auto neighbours = mesh.vertexNeighbors(v);
     for (Index u : neighbours) {

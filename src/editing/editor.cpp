@@ -33,9 +33,12 @@ bool inRange(Property property, double value) {
 
 const char* elementKind(Property property) {
   switch (propertyDomain(property)) {
-    case PropertyDomain::Vertex: return "vertex ";
-    case PropertyDomain::Edge: return "edge ";
-    case PropertyDomain::Angle: return "angle ";
+    case PropertyDomain::Vertex:
+      return "vertex ";
+    case PropertyDomain::Edge:
+      return "edge ";
+    case PropertyDomain::Angle:
+      return "angle ";
   }
   return "";
 }
@@ -49,7 +52,9 @@ std::string describe(const EditCommand& command) {
                    out << "dab ";
                    describeBrush(out, d.brush);
                    switch (d.centre.kind) {
-                     case BrushCentre::Kind::Vertex: out << " at vertex " << d.centre.vertex; break;
+                     case BrushCentre::Kind::Vertex:
+                       out << " at vertex " << d.centre.vertex;
+                       break;
                      case BrushCentre::Kind::FacePoint:
                        out << " at face " << d.centre.face << " point ("
                            << d.centre.point.transpose() << ")";
@@ -157,10 +162,18 @@ void Editor::brushValues(const EditTarget& target, const Brush& brush, bool glob
     const double old = values[element];
     double goal = old;
     switch (brush.mode) {
-      case BrushMode::Set: goal = brush.value; break;
-      case BrushMode::Add: goal = old + brush.value; break;
-      case BrushMode::Multiply: goal = old * brush.value; break;
-      case BrushMode::Smooth: goal = neighbourMean(target, brush.property, element); break;
+      case BrushMode::Set:
+        goal = brush.value;
+        break;
+      case BrushMode::Add:
+        goal = old + brush.value;
+        break;
+      case BrushMode::Multiply:
+        goal = old * brush.value;
+        break;
+      case BrushMode::Smooth:
+        goal = neighbourMean(target, brush.property, element);
+        break;
     }
     // lerp is exact at both ends: full strength and weight give exactly the target.
     const double next = std::lerp(old, goal, brush.strength * weight);
@@ -203,8 +216,7 @@ void Editor::brushValues(const EditTarget& target, const Brush& brush, bool glob
       // An angle takes its centre's weight.
       for (size_t q = 0; q < inside.size(); ++q) {
         const size_t c = static_cast<size_t>(inside[q]);
-        for (Index k = target.angles.vertexOffsets[c]; k < target.angles.vertexOffsets[c + 1];
-             ++k)
+        for (Index k = target.angles.vertexOffsets[c]; k < target.angles.vertexOffsets[c + 1]; ++k)
           consider(k, weight[q]);
       }
       break;
@@ -230,17 +242,24 @@ void Editor::collectEnergyTerms(const EditTarget& target, const Change& change) 
             edgeTerms_.push_back(e);
           }
       break;
-    case Property::RestLength: edgeTerms_.assign(change.indices.begin(), change.indices.end()); break;
+    case Property::RestLength:
+      edgeTerms_.assign(change.indices.begin(), change.indices.end());
+      break;
     case Property::AngularStiffness:
       for (Index c : change.indices)
         for (Index k = target.angles.vertexOffsets[static_cast<size_t>(c)];
              k < target.angles.vertexOffsets[static_cast<size_t>(c) + 1]; ++k)
           angleTerms_.push_back(k);
       break;
-    case Property::RestAngle: angleTerms_.assign(change.indices.begin(), change.indices.end()); break;
-    case Property::Mass: vertexTerms_.assign(change.indices.begin(), change.indices.end()); break;
+    case Property::RestAngle:
+      angleTerms_.assign(change.indices.begin(), change.indices.end());
+      break;
+    case Property::Mass:
+      vertexTerms_.assign(change.indices.begin(), change.indices.end());
+      break;
     case Property::Damping:
-    case Property::Rigidity: break;  // neither stores energy
+    case Property::Rigidity:
+      break;  // neither stores energy
   }
 }
 
@@ -307,7 +326,8 @@ EditResult Editor::write(EditTarget target, const State& state, const Record& re
         }
         break;
       case PropertyDomain::Angle:
-        for (Index k : change.indices) touched_.push_back(target.angles.angles[static_cast<size_t>(k)][0]);
+        for (Index k : change.indices)
+          touched_.push_back(target.angles.angles[static_cast<size_t>(k)][0]);
         break;
     }
   }
@@ -415,8 +435,9 @@ EditResult Editor::apply(EditTarget target, const State& state, const EditComman
         const double next = restLength[e] * scale->factor;
         if (next == restLength[e]) continue;
         if (!inRange(Property::RestLength, next))
-          checkPropertyValue(Property::RestLength, next,
-                             "scale rest: edge " + std::to_string(e) + " would get a value out of range");
+          checkPropertyValue(
+              Property::RestLength, next,
+              "scale rest: edge " + std::to_string(e) + " would get a value out of range");
         lengths.indices.push_back(e);
         lengths.before.push_back(restLength[e]);
         lengths.after.push_back(next);

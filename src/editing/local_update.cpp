@@ -11,10 +11,12 @@ bool propertyChangesMatrices(Property property) {
     case Property::Mass:
     case Property::Damping:
     case Property::Stiffness:
-    case Property::AngularStiffness: return true;
+    case Property::AngularStiffness:
+      return true;
     case Property::Rigidity:
     case Property::RestLength:
-    case Property::RestAngle: return false;
+    case Property::RestAngle:
+      return false;
   }
   return false;
 }
@@ -23,7 +25,9 @@ void appendAffectedRows(const Mesh& mesh, Property property, std::span<const Ind
                         std::vector<Index>& rows) {
   switch (property) {
     case Property::Mass:
-    case Property::Damping: rows.insert(rows.end(), elements.begin(), elements.end()); break;
+    case Property::Damping:
+      rows.insert(rows.end(), elements.begin(), elements.end());
+      break;
     case Property::Stiffness:
     case Property::AngularStiffness:
       for (Index v : elements) {
@@ -33,7 +37,8 @@ void appendAffectedRows(const Mesh& mesh, Property property, std::span<const Ind
       break;
     case Property::Rigidity:
     case Property::RestLength:
-    case Property::RestAngle: break;
+    case Property::RestAngle:
+      break;
   }
 }
 
@@ -127,11 +132,11 @@ MatrixVerification verifyAgainstRebuild(const Model& model, const SystemMatrices
                                         const CriticalPeriodTracker* critical) {
   MatrixVerification result;
   const SystemMatrices full(model);
-  result.system = std::max({maxAbsDifference(system.stiffness(), full.stiffness()),
-                            maxAbsDifference(system.omega2(), full.omega2()),
-                            vectorDifference(system.inverseMass(), full.inverseMass()),
-                            vectorDifference(system.dampingCoefficient(),
-                                             full.dampingCoefficient())});
+  result.system =
+      std::max({maxAbsDifference(system.stiffness(), full.stiffness()),
+                maxAbsDifference(system.omega2(), full.omega2()),
+                vectorDifference(system.inverseMass(), full.inverseMass()),
+                vectorDifference(system.dampingCoefficient(), full.dampingCoefficient())});
   if (transformation) {
     const TransformationMatrices t(full, transformation->period());
     result.transformation = std::max({maxAbsDifference(transformation->omega4(), t.omega4()),
@@ -144,7 +149,8 @@ MatrixVerification verifyAgainstRebuild(const Model& model, const SystemMatrices
   if (critical) {
     const double tracked = critical->period(), exact = zsculpt::criticalPeriod(full);
     result.criticalPeriod = tracked == exact ? 0.0 : std::abs(tracked - exact);
-    if (std::isnan(result.criticalPeriod)) result.criticalPeriod = std::numeric_limits<double>::infinity();
+    if (std::isnan(result.criticalPeriod))
+      result.criticalPeriod = std::numeric_limits<double>::infinity();
   }
   return result;
 }

@@ -408,6 +408,55 @@ ZSCULPT_KERNEL double runForces(Index pairs, Index count, const Index* __restric
   return smallest;
 }
 
+// Arms of a uniform chunk (L = count vertices from c0, of one degree), by slot: arm a of
+// vertex i at a L + i is r_w - r_v, its squared length beside it (the same sums as
+// Vec3::norm's).
+ZSCULPT_KERNEL void slotArms(Index degree, Index count, Index c0,
+                             const Index* __restrict neighbour, const double* __restrict r,
+                             double* __restrict ax, double* __restrict ay,
+                             double* __restrict az, double* __restrict squared) {
+  for (Index a = 0; a < degree; ++a) {
+    const Index o = a * count;
+#pragma omp simd
+    for (Index i = 0; i < count; ++i) {
+      const Index w = neighbour[o + i], v = c0 + i;
+      const double ux = r[3 * w] - r[3 * v], uy = r[3 * w + 1] - r[3 * v + 1],
+                   uz = r[3 * w + 2] - r[3 * v + 2];
+      ax[o + i] = ux;
+      ay[o + i] = uy;
+      az[o + i] = uz;
+      squared[o + i] = ux * ux + uy * uy + uz * uz;
+    }
+  }
+}
+
+// Per arm slot a of a run of L vertices, the sum of its angles' forces in angle order (the
+// degree's term table), for all vertices at once.
+ZSCULPT_KERNEL void slotSums(Index degree, Index count, Index maxAngles,
+                             const Index* __restrict start, const Index* __restrict term,
+                             const double* __restrict fx, const double* __restrict fy,
+                             const double* __restrict fz, double* __restrict gx,
+                             double* __restrict gy, double* __restrict gz) {
+  for (Index a = 0; a < degree; ++a) {
+    double* __restrict x = gx + a * count;
+    double* __restrict y = gy + a * count;
+    double* __restrict z = gz + a * count;
+    for (Index i = 0; i < count; ++i) x[i] = y[i] = z[i] = 0.0;
+    for (Index t = start[a]; t < start[a + 1]; ++t) {
+      const Index at = (term[t] % maxAngles) * count + (term[t] >= maxAngles ? maxAngles : 0);
+      const double* __restrict px = fx + at;
+      const double* __restrict py = fy + at;
+      const double* __restrict pz = fz + at;
+#pragma omp simd
+      for (Index i = 0; i < count; ++i) {
+        x[i] += px[i];
+        y[i] += py[i];
+        z[i] += pz[i];
+      }
+    }
+  }
+}
+
 }  // namespace
 
 ForceKernel::ForceKernel(const Model& model, int maxThreads) {
@@ -524,16 +573,45 @@ ForceKernel::ForceKernel(const Model& model, int maxThreads) {
     incomingStart_.push_back(static_cast<Index>(k));
   }
 
-  // Work space: the largest chunk of any block.
+  // Chunks: consecutive vertices of a block, at most chunkVertices_ of them; one degree
+  // throughout makes a uniform chunk, whose half-edges the kernel keeps by arm slot.
+  const bool uniformAllowed = canonicalAngles_ && !reference_;
+  blockChunk_.assign(1, 0);
+  chunkStart_.clear();
+  chunkDegree_.clear();
   size_t maxArms = 0, maxAngles = 0;
   for (Index b = 0; b < blocks; ++b) {
     const Index v0 = blockStart_[static_cast<size_t>(b)], v1 = blockStart_[static_cast<size_t>(b) + 1];
     for (Index c0 = v0; c0 < v1; c0 += chunkVertices_) {
       const Index c1 = std::min(c0 + chunkVertices_, v1);
+      const Index degree = off[c0 + 1] - off[c0];
+      bool uniform = uniformAllowed && degree > 0;
+      for (Index v = c0; v < c1 && uniform; ++v) uniform = off[v + 1] - off[v] == degree;
+      chunkStart_.push_back(c0);
+      chunkDegree_.push_back(uniform ? degree : 0);
       maxArms = std::max(maxArms, static_cast<size_t>(off[c1] - off[c0]));
       if (!reference_)
         maxAngles = std::max(maxAngles, static_cast<size_t>(angles.vertexOffsets[static_cast<size_t>(c1)] -
                                                             angles.vertexOffsets[static_cast<size_t>(c0)]));
+    }
+    blockChunk_.push_back(static_cast<Index>(chunkStart_.size()));
+  }
+  chunkStart_.push_back(n);
+  const Index* meshEdge = mesh.vertexEdgeTable().indices.data();
+  neighbour_.resize(neighbours.indices.size());
+  edge_.resize(neighbours.indices.size());
+  std::vector<Index> meshTarget = std::move(target_);
+  target_.resize(meshTarget.size());
+  for (size_t c = 0; c < chunkDegree_.size(); ++c) {
+    const Index c0 = chunkStart_[c], c1 = chunkStart_[c + 1], degree = chunkDegree_[c];
+    const Index h0 = off[c0], count = c1 - c0;
+    for (Index h = h0; h < off[c1]; ++h) {
+      // Mesh half-edge h is arm a of the chunk's vertex i; uniform chunks store it at a L + i.
+      const Index i = degree ? (h - h0) / degree : 0, a = degree ? (h - h0) % degree : 0;
+      const size_t to = static_cast<size_t>(degree ? h0 + a * count + i : h);
+      neighbour_[to] = nbr[h];
+      edge_[to] = meshEdge[h];
+      target_[to] = meshTarget[static_cast<size_t>(h)];
     }
   }
   maxAngles_ = static_cast<Index>(maxAngles);
@@ -599,7 +677,8 @@ void ForceKernel::propertiesChanged(const Model& model, std::span<const Index> v
 
 size_t ForceKernel::bytes() const {
   size_t total = 0;
-  for (const auto* v : {&blockStart_, &target_, &haloStart_, &incomingStart_, &incomingRow_,
+  for (const auto* v : {&blockStart_, &blockChunk_, &chunkStart_, &chunkDegree_, &neighbour_,
+                        &edge_, &target_, &haloStart_, &incomingStart_, &incomingRow_,
                         &incomingHalo_, &incomingBlock_, &angleArm_, &pairStart_, &pairA_,
                         &pairB_, &termStart_, &armTermStart_, &armTerm_})
     total += v->capacity() * sizeof(Index);
@@ -661,8 +740,7 @@ void ForceKernel::scatterBlock(const Model& model, const Points& position, Point
   std::fill(acc, acc + 3 * static_cast<size_t>(length + haloLength), 0.0);
 
   const Index* off = mesh.vertexNeighborTable().offsets.data();
-  const Index* nbr = mesh.vertexNeighborTable().indices.data();
-  const Index* edge = mesh.vertexEdgeTable().indices.data();
+  const Index* nbr = neighbour_.data();
   const Index* angleOffsets = model.angles.vertexOffsets.data();
   const double* r = position.data();
   const double* kappaTheta = prop.angularStiffness.data();
@@ -675,19 +753,19 @@ void ForceKernel::scatterBlock(const Model& model, const Points& position, Point
   const size_t second = static_cast<size_t>(maxAngles_);
   bool anyAngle = false;
 
-  // Deposits the angle forces of centre v (row vertex - v0 of acc): kappa_theta times the
-  // force on the end of each arm h, in arm order, then minus their sum on the centre, then
-  // the degenerate angles (arms (anti)parallel or of zero length), whose direction
-  // angleSpringForce picks. force(arm, d) is the arm's summed force without kappa_theta;
-  // sine(k) and arms(k) describe the vertex's angle k.
-  auto deposit = [&](Index v, double kappa, auto&& armForce, bool checkDegenerate,
+  // Deposits the angle forces of centre v: kappa_theta times the force on the end of each of
+  // its arms (arm a is half-edge slot(a) of the kernel's order), in arm order, minus their
+  // sum on the centre, then the degenerate angles (arms (anti)parallel or of zero length),
+  // whose direction angleSpringForce picks. armForce(a, f): the arm's summed force without
+  // kappa_theta; sineOf(k), armsOf(k): the vertex's angle k.
+  auto deposit = [&](Index v, double kappa, auto&& slot, auto&& armForce, bool checkDegenerate,
                      auto&& sineOf, auto&& armsOf) {
     double cx = 0.0, cy = 0.0, cz = 0.0;
-    for (Index h = off[v]; h < off[v + 1]; ++h) {
+    for (Index a = 0; a < off[v + 1] - off[v]; ++a) {
       double f[3];
-      armForce(h - off[v], f);
+      armForce(a, f);
       const double fx = kappa * f[0], fy = kappa * f[1], fz = kappa * f[2];
-      double* t = acc + 3 * static_cast<size_t>(target_[static_cast<size_t>(h)]);
+      double* t = acc + 3 * static_cast<size_t>(target_[static_cast<size_t>(slot(a))]);
       t[0] += fx;
       t[1] += fy;
       t[2] += fz;
@@ -718,34 +796,83 @@ void ForceKernel::scatterBlock(const Model& model, const Points& position, Point
     }
   };
 
-  for (Index c0 = v0; c0 < v1; c0 += chunkVertices_) {
-    const Index c1 = std::min(c0 + chunkVertices_, v1);
-    const Index h0 = off[c0], arms = off[c1] - h0;
-    // Arms r_w - r_v and their squared lengths (the same sums as Vec3::norm's).
-    for (Index v = c0; v < c1; ++v) {
-      const double rx = r[3 * v], ry = r[3 * v + 1], rz = r[3 * v + 2];
-      for (Index h = off[v]; h < off[v + 1]; ++h) {
-        const Index w = nbr[h], j = h - h0;
-        const double ux = r[3 * w] - rx, uy = r[3 * w + 1] - ry, uz = r[3 * w + 2] - rz;
-        ax[j] = ux;
-        ay[j] = uy;
-        az[j] = uz;
-        len[j] = ux * ux + uy * uy + uz * uz;
+  // The angles of a run of `count` vertices from v of one degree whose arms are by slot in
+  // tx.. (arm a of vertex i at a count + i), rest angles from restAngle + angleOffsets[v];
+  // slot(i, a) is the arm's kernel half-edge.
+  auto slotAngles = [&](Index v, Index count, Index degree, const double* tx, const double* ty,
+                        const double* tz, const double* tl, auto&& slot) {
+    const Index pairs = degree * (degree - 1) / 2;
+    const Index* pa = pairA_.data() + pairStart_[static_cast<size_t>(degree)];
+    const Index* pb = pairB_.data() + pairStart_[static_cast<size_t>(degree)];
+    runCosSin(pairs, count, pa, pb, tx, ty, tz, s.cosine.data(), s.sine.data());
+    Eigen::Map<Eigen::ArrayXd> sines(s.sine.data(), pairs * count);
+    sines = sines.sqrt();
+    const double smallest =
+        runForces(pairs, count, pa, pb, tx, ty, tz, tl, s.sine.data(), s.cosine.data(),
+                  restAngle + angleOffsets[v], s.fx.data(), s.fy.data(), s.fz.data(),
+                  s.fx.data() + second, s.fy.data() + second, s.fz.data() + second);
+    slotSums(degree, count, maxAngles_,
+             armTermStart_.data() + termStart_[static_cast<size_t>(degree)], armTerm_.data(),
+             s.fx.data(), s.fy.data(), s.fz.data(), s.gx.data(), s.gy.data(), s.gz.data());
+    for (Index i = 0; i < count; ++i) {
+      const Index w = v + i;
+      if (kappaTheta[w] == 0.0) continue;
+      deposit(
+          w, kappaTheta[w], [&](Index a) { return slot(i, a); },
+          [&](Index a, double* f) {
+            const size_t at = static_cast<size_t>(a * count + i);
+            f[0] = s.gx[at];
+            f[1] = s.gy[at];
+            f[2] = s.gz[at];
+          },
+          !(smallest > 1e-12),
+          [&](Index k) { return s.sine[static_cast<size_t>(k * count + i)]; },
+          [&](Index k, Index& hp, Index& hq) {
+            hp = slot(i, pa[k]);
+            hq = slot(i, pb[k]);
+          });
+    }
+  };
+
+  for (Index chunk = blockChunk_[static_cast<size_t>(block)];
+       chunk < blockChunk_[static_cast<size_t>(block) + 1]; ++chunk) {
+    const Index c0 = chunkStart_[static_cast<size_t>(chunk)];
+    const Index c1 = chunkStart_[static_cast<size_t>(chunk) + 1];
+    const Index uniform = chunkDegree_[static_cast<size_t>(chunk)];
+    const Index h0 = off[c0], arms = off[c1] - h0, count = c1 - c0;
+    // Arms r_w - r_v and their lengths, then the radial springs (section 5.1) of every arm:
+    // the force on v, rounding for rounding radialSpringForce's.
+    if (uniform) {
+      slotArms(uniform, count, c0, nbr + h0, r, ax, ay, az, len);
+    } else {
+      for (Index v = c0; v < c1; ++v) {
+        const double rx = r[3 * v], ry = r[3 * v + 1], rz = r[3 * v + 2];
+        for (Index h = off[v]; h < off[v + 1]; ++h) {
+          const Index w = nbr[h], j = h - h0;
+          const double ux = r[3 * w] - rx, uy = r[3 * w + 1] - ry, uz = r[3 * w + 2] - rz;
+          ax[j] = ux;
+          ay[j] = uy;
+          az[j] = uz;
+          len[j] = ux * ux + uy * uy + uz * uz;
+        }
       }
     }
     Eigen::Map<Eigen::ArrayXd> lengths(len, arms);
     lengths = lengths.sqrt();
-    radialBatch(arms, edge + h0, edgeKappa_.data(), prop.restLength.data(), ax, ay, az, len, il,
-                s.gx.data(), s.gy.data(), s.gz.data());
-    // Radial springs (section 5.1), gathered: each vertex adds its edges' forces in
-    // increasing edge index (Mesh::vertexEdges), as accumulateInternalForces does, so
-    // without angle springs the forces are bit-identical to the reference.
+    radialBatch(arms, edge_.data() + h0, edgeKappa_.data(), prop.restLength.data(), ax, ay, az,
+                len, il, s.gx.data(), s.gy.data(), s.gz.data());
+    // Each vertex adds its edges' forces in increasing edge index (Mesh::vertexEdges, the arm
+    // order), as accumulateInternalForces does: without angle springs the forces are
+    // bit-identical to the reference.
     for (Index v = c0; v < c1; ++v) {
+      const Index degree = off[v + 1] - off[v];
+      const Index first = uniform ? v - c0 : off[v] - h0, stride = uniform ? count : 1;
       double fx = 0.0, fy = 0.0, fz = 0.0;
-      for (Index j = off[v] - h0; j < off[v + 1] - h0; ++j) {
-        fx += s.gx[static_cast<size_t>(j)];
-        fy += s.gy[static_cast<size_t>(j)];
-        fz += s.gz[static_cast<size_t>(j)];
+      for (Index a = 0; a < degree; ++a) {
+        const size_t j = static_cast<size_t>(first + a * stride);
+        fx += s.gx[j];
+        fy += s.gy[j];
+        fz += s.gz[j];
       }
       double* own = acc + 3 * (v - v0);
       own[0] += fx;
@@ -753,9 +880,18 @@ void ForceKernel::scatterBlock(const Model& model, const Points& position, Point
       own[2] += fz;
     }
 
-    // Angle springs (section 5.2), centre by centre: runs of vertices of one degree with the
-    // springs on take the transposed path, the others the general one; both do the same
-    // arithmetic and deposit in vertex order, so the split changes nothing in the result.
+    // Angle springs (section 5.2), centre by centre. Uniform chunks and runs of one degree
+    // take the by-slot path, the others the general one; both do the same arithmetic and
+    // deposit in vertex order, so the split changes nothing in the result.
+    if (uniform) {
+      bool any = false;
+      for (Index v = c0; v < c1 && !any; ++v) any = kappaTheta[v] != 0.0;
+      if (!any || uniform < 2) continue;
+      anyAngle = true;
+      slotAngles(c0, count, uniform, ax, ay, az, il,
+                 [&](Index i, Index a) { return h0 + a * count + i; });
+      continue;
+    }
     Index v = c0;
     while (v < c1) {
       if (kappaTheta[v] == 0.0) {
@@ -774,69 +910,19 @@ void ForceKernel::scatterBlock(const Model& model, const Points& position, Point
       }
       anyAngle = true;
       if (canonicalAngles_ && u - v >= kMinRun) {
-        // Transposed run: arm a of vertex i at a L + i.
-        const Index count = u - v, pairs = degree * (degree - 1) / 2;
-        const Index base = off[v] - h0;
-        for (Index i = 0; i < count; ++i)
+        // A run: arms transposed to slot order.
+        const Index run = u - v, base = off[v] - h0;
+        for (Index i = 0; i < run; ++i)
           for (Index a = 0; a < degree; ++a) {
             const size_t from = static_cast<size_t>(base + degree * i + a);
-            const size_t to = static_cast<size_t>(a * count + i);
+            const size_t to = static_cast<size_t>(a * run + i);
             s.tx[to] = ax[from];
             s.ty[to] = ay[from];
             s.tz[to] = az[from];
             s.tl[to] = il[from];
           }
-        const Index* pa = pairA_.data() + pairStart_[static_cast<size_t>(degree)];
-        const Index* pb = pairB_.data() + pairStart_[static_cast<size_t>(degree)];
-        runCosSin(pairs, count, pa, pb, s.tx.data(), s.ty.data(), s.tz.data(), s.cosine.data(),
-                  s.sine.data());
-        Eigen::Map<Eigen::ArrayXd> sines(s.sine.data(), pairs * count);
-        sines = sines.sqrt();
-        const double smallest =
-            runForces(pairs, count, pa, pb, s.tx.data(), s.ty.data(), s.tz.data(), s.tl.data(),
-                      s.sine.data(), s.cosine.data(), restAngle + angleOffsets[v], s.fx.data(),
-                      s.fy.data(), s.fz.data(), s.fx.data() + second, s.fy.data() + second,
-                      s.fz.data() + second);
-        // Per arm, the sum of its angles' forces in angle order, for all vertices at once.
-        const Index* start = armTermStart_.data() + termStart_[static_cast<size_t>(degree)];
-        for (Index a = 0; a < degree; ++a) {
-          double* gx = s.gx.data() + a * count;
-          double* gy = s.gy.data() + a * count;
-          double* gz = s.gz.data() + a * count;
-          std::fill(gx, gx + count, 0.0);
-          std::fill(gy, gy + count, 0.0);
-          std::fill(gz, gz + count, 0.0);
-          for (Index t = start[a]; t < start[a + 1]; ++t) {
-            const Index term = armTerm_[static_cast<size_t>(t)];
-            const size_t at = static_cast<size_t>((term % maxAngles_) * count) +
-                              (term >= maxAngles_ ? second : 0);
-            const double* fx = s.fx.data() + at;
-            const double* fy = s.fy.data() + at;
-            const double* fz = s.fz.data() + at;
-            for (Index i = 0; i < count; ++i) {
-              gx[i] += fx[i];
-              gy[i] += fy[i];
-              gz[i] += fz[i];
-            }
-          }
-        }
-        for (Index i = 0; i < count; ++i) {
-          const Index w = v + i;
-          deposit(
-              w, kappaTheta[w],
-              [&](Index a, double* f) {
-                const size_t at = static_cast<size_t>(a * count + i);
-                f[0] = s.gx[at];
-                f[1] = s.gy[at];
-                f[2] = s.gz[at];
-              },
-              !(smallest > 1e-12),
-              [&](Index k) { return s.sine[static_cast<size_t>(k * count + i)]; },
-              [&](Index k, Index& hp, Index& hq) {
-                hp = off[w] + pa[k];
-                hq = off[w] + pb[k];
-              });
-        }
+        slotAngles(v, run, degree, s.tx.data(), s.ty.data(), s.tz.data(), s.tl.data(),
+                   [&](Index i, Index a) { return off[v + i] + a; });
       } else {
         // General path: a batch of the range's angles with their arms' indices.
         Index m = 0;
@@ -852,12 +938,14 @@ void ForceKernel::scatterBlock(const Model& model, const Points& position, Point
             }
           } else {
             for (Index k = 0; k < count; ++k) {
-              s.armP[static_cast<size_t>(m + k)] = angleArm_[2 * static_cast<size_t>(first + k)] - h0;
+              s.armP[static_cast<size_t>(m + k)] =
+                  angleArm_[2 * static_cast<size_t>(first + k)] - h0;
               s.armQ[static_cast<size_t>(m + k)] =
                   angleArm_[2 * static_cast<size_t>(first + k) + 1] - h0;
             }
           }
-          for (Index k = 0; k < count; ++k) s.rest[static_cast<size_t>(m + k)] = restAngle[first + k];
+          for (Index k = 0; k < count; ++k)
+            s.rest[static_cast<size_t>(m + k)] = restAngle[first + k];
           m += count;
         }
         angleCosSin(m, s.armP.data(), s.armQ.data(), ax, ay, az, s.cosine.data(), s.sine.data());
@@ -871,6 +959,7 @@ void ForceKernel::scatterBlock(const Model& model, const Points& position, Point
         for (Index w = v; w < u; ++w) {
           const Index d = off[w + 1] - off[w];
           const Index count = angleOffsets[w + 1] - angleOffsets[w];
+          auto slot = [&](Index a) { return off[w] + a; };
           auto sineOf = [&](Index k) { return s.sine[static_cast<size_t>(k0 + k)]; };
           auto armsOf = [&](Index k, Index& hp, Index& hq) {
             hp = s.armP[static_cast<size_t>(k0 + k)] + h0;
@@ -879,7 +968,7 @@ void ForceKernel::scatterBlock(const Model& model, const Points& position, Point
           if (canonicalAngles_) {
             const Index* start = armTermStart_.data() + termStart_[static_cast<size_t>(d)];
             deposit(
-                w, kappaTheta[w],
+                w, kappaTheta[w], slot,
                 [&](Index a, double* f) {
                   f[0] = f[1] = f[2] = 0.0;
                   for (Index t = start[a]; t < start[a + 1]; ++t) {
@@ -908,7 +997,7 @@ void ForceKernel::scatterBlock(const Model& model, const Points& position, Point
               s.tz[j] += s.fz[at + second];
             }
             deposit(
-                w, kappaTheta[w],
+                w, kappaTheta[w], slot,
                 [&](Index a, double* f) {
                   f[0] = s.tx[static_cast<size_t>(a)];
                   f[1] = s.ty[static_cast<size_t>(a)];
@@ -928,6 +1017,13 @@ void ForceKernel::scatterBlock(const Model& model, const Points& position, Point
               acc + 3 * static_cast<size_t>(length + haloLength),
               halo_.data() + 3 * static_cast<size_t>(haloBegin));
   blockHasAngles_[static_cast<size_t>(block)] = anyAngle ? 1 : 0;
+}
+
+Index ForceKernel::uniformVertices() const {
+  Index total = 0;
+  for (size_t c = 0; c < chunkDegree_.size(); ++c)
+    if (chunkDegree_[c]) total += chunkStart_[c + 1] - chunkStart_[c];
+  return total;
 }
 
 void ForceKernel::gatherBlock(Index block, Points& force) const {

@@ -255,48 +255,92 @@ void Stepper::stepDefault(State& s, const Points& external, std::span<const doub
   // Velocity Verlet with the filtered acceleration Phi a, Phi = I - T^2 Omega^2 / 12, and
   // the damping of G exactly over two half steps (stepper.h):
   //   v <- e^{-GT} v + (T/2) Phi a(r);  r <- r + T v;  v <- e^{-GT} (v + (T/2) Phi a(r)).
-  // The first kick equals the last step's second one while nothing but the position
-  // changed (same internal forces, zero external forces, no share): it is kept in kick_.
+  // Passes over the blocks: external forces checked for zero; kick and drift; internal
+  // forces (ForceKernel's two phases); kick and damping. The accelerations are made on the
+  // fly inside the filter's product (a_j = sigma_j M_j^-1 ((F_j + F_ext,j) + mu_j g), the
+  // same expression as accelerationRows) instead of being stored and read back. The first
+  // kick equals the last step's second one while nothing but the position changed (same
+  // internal forces, zero external forces, no share): it is kept in kick_.
   const double t = period_, half = 0.5 * t, filter = t * t * t / 24.0;
   const Index blocks = forces_.numBlocks();
   const bool startCached = cacheValid_;
   const bool reuseCandidate = cacheValid_ && kickValid_ && share.empty();
   const SparseRowMatrix& o2 = system_.omega2();
+  const Index* outer = o2.outerIndexPtr();
+  const Index* inner = o2.innerIndexPtr();
+  const double* value = o2.valuePtr();
+  const double* inverseMass = system_.inverseMass().data();
+  const double* mass = model_.properties.mass.data();
+  const Vec3 g = model_.properties.gravity;
+  const bool gravity = !g.isZero();
+  const double* e = external.data();
   double* r = s.position.data();
   double* v = s.velocity.data();
-  bool reused = false;
+  double* kick = kick_.data();
+  bool externalZero = true;
 #pragma omp parallel num_threads(threads_) if (threads_ > 1)
   {
-    bool reuse = reuseCandidate;
-    if (reuse) {
 #pragma omp for schedule(static)
-      for (Index b = 0; b < blocks; ++b)
-        externalZero_[static_cast<size_t>(b)] =
-            rowsAreZero(external, forces_.blockBegin(b), forces_.blockEnd(b)) ? 1 : 0;
-      for (Index b = 0; b < blocks; ++b) reuse = reuse && externalZero_[static_cast<size_t>(b)];
-    }
-    if (!reuse) {
-      // a(r) at the start: internal forces (cached unless the state changed), external
-      // forces, gravity.
-      if (!startCached) forces_.scatter(model_, s.position, internal_);
-#pragma omp for schedule(static)
-      for (Index b = 0; b < blocks; ++b) {
-        if (!startCached) forces_.gatherBlock(b, internal_);
-        accelerationRows(b, internal_, external, share, true);
+    for (Index b = 0; b < blocks; ++b)
+      externalZero_[static_cast<size_t>(b)] =
+          rowsAreZero(external, forces_.blockBegin(b), forces_.blockEnd(b)) ? 1 : 0;
+    bool zero = true;
+    for (Index b = 0; b < blocks; ++b) zero = zero && externalZero_[static_cast<size_t>(b)];
+    const bool reuse = reuseCandidate && zero;
+    // a_j from the internal forces f, as accelerationRows makes it (and the total force).
+    auto acceleration = [&](const double* f, Index j, double out[3], double* total = nullptr) {
+      const size_t k = 3 * static_cast<size_t>(j);
+      double x = f[k], y = f[k + 1], z = f[k + 2];
+      if (!zero) {
+        x += e[k];
+        y += e[k + 1];
+        z += e[k + 2];
       }
+      if (gravity) {
+        x += mass[j] * g.x();
+        y += mass[j] * g.y();
+        z += mass[j] * g.z();
+      }
+      if (total) {
+        total[0] = x;
+        total[1] = y;
+        total[2] = z;
+      }
+      const double scale =
+          share.empty() ? inverseMass[j] : share[static_cast<size_t>(j)] * inverseMass[j];
+      out[0] = scale * x;
+      out[1] = scale * y;
+      out[2] = scale * z;
+    };
+    // (T/2) Phi a at row i: (T/2) a_i - (T^3/24) (Omega^2 a)_i.
+    auto filteredKick = [&](const double* f, Index i, double* out, double* total = nullptr) {
+      double wx = 0.0, wy = 0.0, wz = 0.0;
+      for (Index p = outer[i]; p < outer[i + 1]; ++p) {
+        double a[3];
+        acceleration(f, inner[p], a);
+        wx += value[p] * a[0];
+        wy += value[p] * a[1];
+        wz += value[p] * a[2];
+      }
+      double a[3];
+      acceleration(f, i, a, total);
+      out[0] = half * a[0] - filter * wx;
+      out[1] = half * a[1] - filter * wy;
+      out[2] = half * a[2] - filter * wz;
+    };
+    if (!reuse && !startCached) {
+      forces_.scatter(model_, s.position, internal_);
+#pragma omp for schedule(static)
+      for (Index b = 0; b < blocks; ++b) forces_.gatherBlock(b, internal_);
     }
-    // Kick and drift.
-    const double* a = acceleration_.data();
-    double* kick = kick_.data();
+    // Kick and drift; with loads, the total force at the start on the way (lastTotalForce).
+    const double* f0 = internal_.data();
+    double* total = zero ? nullptr : totalForce_.data();
 #pragma omp for schedule(static)
     for (Index b = 0; b < blocks; ++b)
       for (Index i = forces_.blockBegin(b); i < forces_.blockEnd(b); ++i) {
         const size_t k = 3 * static_cast<size_t>(i);
-        if (!reuse) {
-          double w[3];
-          rowProduct(o2, a, i, w);
-          for (int d = 0; d < 3; ++d) kick[k + d] = half * a[k + d] - filter * w[d];
-        }
+        if (!reuse) filteredKick(f0, i, kick + k, total ? total + k : nullptr);
         const double damp = dampHalf_[i];
         for (int d = 0; d < 3; ++d) {
           v[k + d] = v[k + d] * damp + kick[k + d];
@@ -306,33 +350,26 @@ void Stepper::stepDefault(State& s, const Points& external, std::span<const doub
     // Internal forces at the new position.
     forces_.scatter(model_, s.position, previousInternal_);
 #pragma omp for schedule(static)
-    for (Index b = 0; b < blocks; ++b) {
-      forces_.gatherBlock(b, previousInternal_);
-      accelerationRows(b, previousInternal_, external, share, false);
-    }
+    for (Index b = 0; b < blocks; ++b) forces_.gatherBlock(b, previousInternal_);
     // Second kick and damping.
+    const double* f1 = previousInternal_.data();
 #pragma omp for schedule(static)
     for (Index b = 0; b < blocks; ++b)
       for (Index i = forces_.blockBegin(b); i < forces_.blockEnd(b); ++i) {
         const size_t k = 3 * static_cast<size_t>(i);
-        double w[3];
-        rowProduct(o2, a, i, w);
+        filteredKick(f1, i, kick + k);
         const double damp = dampHalf_[i];
-        for (int d = 0; d < 3; ++d) {
-          kick[k + d] = half * a[k + d] - filter * w[d];
-          v[k + d] = (v[k + d] + kick[k + d]) * damp;
-        }
+        for (int d = 0; d < 3; ++d) v[k + d] = (v[k + d] + kick[k + d]) * damp;
       }
 #pragma omp single
-    reused = reuse;
+    externalZero = zero;
   }
-  // previousInternal_ now holds the forces at the new position: swap the two buffers.
+  // previousInternal_ now holds the forces at the new position: swap the two buffers. The
+  // total force at the start was written with loads, else it is made on demand.
   internal_.swap(previousInternal_);
-  totalForceReady_ = !reused;
+  totalForceReady_ = !externalZero;
   cacheValid_ = true;
-  bool zero = share.empty();
-  for (Index b = 0; b < blocks; ++b) zero = zero && externalZero_[static_cast<size_t>(b)];
-  kickValid_ = zero;
+  kickValid_ = share.empty() && externalZero;
 }
 
 void Stepper::stepPaper(State& s, const Points& external, std::span<const double> share) {

@@ -90,6 +90,7 @@ struct GlyphBatch {
 
 struct Renderer::Impl {
   detail::GlFunctions gl;
+  bool loaded = false;
   RenderLimits limits;
   std::string shaderDir;
   std::string lighting;
@@ -286,6 +287,7 @@ struct Renderer::Impl {
 
   void init(const GlLoader& loader, const RendererOptions& options) {
     gl.load(loader);
+    loaded = true;
     const auto* version = reinterpret_cast<const char*>(gl.GetString(GL_VERSION));
     const auto* rendererName = reinterpret_cast<const char*>(gl.GetString(GL_RENDERER));
     if (version == nullptr) {
@@ -382,7 +384,7 @@ struct Renderer::Impl {
   }
 
   void destroy() {
-    if (gl.DeleteBuffers == nullptr) return;  // loading failed: nothing was created
+    if (!loaded) return;  // loading failed: nothing was created
     for (GLuint p : {backgroundProgram, surfaceProgram, glyphProgram, lineProgram, pointProgram,
                      overlayProgram}) {
       if (p != 0) gl.DeleteProgram(p);
@@ -1012,7 +1014,7 @@ struct Renderer::Impl {
       uploadOverlay(legend);
     }
     const double margin = 0.03 * height;
-    legend.x = width - legend.canvas.width() - margin;
+    legend.x = std::round(width - legend.canvas.width() - margin);  // whole texels
     legend.y = std::round(0.5 * (height - legend.canvas.height()));
   }
 
@@ -1033,8 +1035,8 @@ struct Renderer::Impl {
                           Align::Center);
       uploadOverlay(caption);
     }
-    caption.x = 0.03 * height;
-    caption.y = height - caption.canvas.height() - 0.03 * height;
+    caption.x = std::round(0.03 * height);
+    caption.y = std::round(height - caption.canvas.height() - 0.03 * height);
   }
 
   void drawOverlay(const Overlay& overlay, int width, int height) {

@@ -105,13 +105,18 @@ class ConstraintSolver {
   /// Improves the forces against `response` (anchored at the last computed step).
   void solve(const ConstraintSet& constraints, const StepResponse& response,
              double positionTolerance, double normalTolerance);
-  /// Velocity consistency at the end of the step: a pinned vertex moves as its target did
-  /// over the step ((end - start) / T), a constrained plane does not turn about axes across
-  /// its normal. Writes the velocity change of every support vertex to `delta` (|S| x 3);
-  /// vertices with no elastic share (sigma = 0) move with the rigid body and are left alone.
-  void velocityCorrection(const ConstraintSet& constraints, const Points& startPosition,
-                          const Points& endPosition, const Points& velocity, const VectorX& mass,
-                          std::span<const double> elasticShare, double period, Points& delta) const;
+  /// Velocity consistency at the end of the cycle, as velocity changes of the halo vertices
+  /// (`delta`, |halo()| x 3): the virtual forces count as an impulse at the start of the
+  /// cycle (the stepper's second half kick of them is taken back), a pinned vertex moves as
+  /// its target did ((end - start) / T), a constrained plane does not turn across its normal.
+  /// Vertices with no elastic share (sigma = 0) move with the rigid body: steps 2 and 3
+  /// leave them alone.
+  void velocityCorrection(const ConstraintSet& constraints, const Stepper& stepper,
+                          const Points& startPosition, const Points& endPosition,
+                          const Points& velocity, const VectorX& mass,
+                          std::span<const double> elasticShare, Points& delta) const;
+  /// The support and its one-ring, sorted: the rows velocityCorrection() writes.
+  [[nodiscard]] std::span<const Index> halo() const { return halo_; }
 
  private:
   struct Pin {
@@ -125,6 +130,7 @@ class ConstraintSolver {
     std::vector<Vec3> arm;      // r_j - c at the start of the step
     Mat3 inertia = Mat3::Zero();  // sum m_j (|arm|^2 1 - arm arm^T)
     double radius = 1.0;          // mean |arm|
+    Eigen::Matrix<double, 3, 2> across = Eigen::Matrix<double, 3, 2>::Zero();  // _|_ target
     Vec3 hint = Vec3::UnitZ();    // the oriented normal at the start of the step
   };
   void assembleForces();
@@ -135,6 +141,8 @@ class ConstraintSolver {
 
   std::vector<Index> support_;
   std::vector<Index> localOf_;  // vertex -> position in support_, or -1
+  std::vector<Index> halo_;     // support_ and its one-ring
+  std::vector<Index> haloOf_;   // support position -> position in halo_
   std::vector<Pin> pins_;
   std::vector<Plane> planes_;
   std::vector<Vec3> pinForce_, couple_;

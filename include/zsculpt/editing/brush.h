@@ -78,8 +78,8 @@ struct Brush {
 struct BrushCentre {
   enum class Kind { Vertex, FacePoint, Point };
   Kind kind = Kind::Vertex;
-  Index vertex = 0;          // Vertex
-  Index face = -1;           // FacePoint: the face the point lies on (a ray pick's result)
+  Index vertex = 0;           // Vertex
+  Index face = -1;            // FacePoint: the face the point lies on (a ray pick's result)
   Vec3 point = Vec3::Zero();  // FacePoint, Point
 
   /// Distance 0 at the vertex.
@@ -102,8 +102,8 @@ class BrushRegion {
   /// The vertices at distance < radius from `centre` on `position` (N x 3) and their
   /// falloff weights (> 0). Throws InvalidInputError for a centre out of range or not
   /// finite, or a radius that is not positive and finite.
-  void compute(const Mesh& mesh, const Points& position, const BrushCentre& centre,
-               double radius, Falloff falloff, DistanceKind distance);
+  void compute(const Mesh& mesh, const Points& position, const BrushCentre& centre, double radius,
+               Falloff falloff, DistanceKind distance);
 
   /// Inside vertices, in the order they were reached (surface: increasing distance).
   [[nodiscard]] std::span<const Index> vertices() const { return vertices_; }
@@ -117,8 +117,7 @@ class BrushRegion {
   [[nodiscard]] Index size() const { return static_cast<Index>(vertices_.size()); }
 
  private:
-  void surface(const Mesh& mesh, const Points& position, const BrushCentre& centre,
-               double radius);
+  void surface(const Mesh& mesh, const Points& position, const BrushCentre& centre, double radius);
   void euclidean(const Mesh& mesh, const Points& position, const BrushCentre& centre,
                  double radius);
   void reach(Index v, double d);

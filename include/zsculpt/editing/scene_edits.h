@@ -14,28 +14,36 @@ namespace zsculpt::editing {
 
 inline BrushMode fromScene(io::BrushMode mode) {
   switch (mode) {
-    case io::BrushMode::Set: return BrushMode::Set;
-    case io::BrushMode::Add: return BrushMode::Add;
-    case io::BrushMode::Multiply: return BrushMode::Multiply;
-    case io::BrushMode::Smooth: return BrushMode::Smooth;
+    case io::BrushMode::Set:
+      return BrushMode::Set;
+    case io::BrushMode::Add:
+      return BrushMode::Add;
+    case io::BrushMode::Multiply:
+      return BrushMode::Multiply;
+    case io::BrushMode::Smooth:
+      return BrushMode::Smooth;
   }
   return BrushMode::Set;
 }
 
 inline Falloff fromScene(io::BrushFalloff falloff) {
   switch (falloff) {
-    case io::BrushFalloff::Smooth: return Falloff::Smooth;
-    case io::BrushFalloff::Sphere: return Falloff::Sphere;
-    case io::BrushFalloff::Linear: return Falloff::Linear;
-    case io::BrushFalloff::Sharp: return Falloff::Sharp;
-    case io::BrushFalloff::Constant: return Falloff::Constant;
+    case io::BrushFalloff::Smooth:
+      return Falloff::Smooth;
+    case io::BrushFalloff::Sphere:
+      return Falloff::Sphere;
+    case io::BrushFalloff::Linear:
+      return Falloff::Linear;
+    case io::BrushFalloff::Sharp:
+      return Falloff::Sharp;
+    case io::BrushFalloff::Constant:
+      return Falloff::Constant;
   }
   return Falloff::Smooth;
 }
 
 inline DistanceKind fromScene(io::BrushDistance distance) {
-  return distance == io::BrushDistance::Euclidean ? DistanceKind::Euclidean
-                                                  : DistanceKind::Surface;
+  return distance == io::BrushDistance::Euclidean ? DistanceKind::Euclidean : DistanceKind::Surface;
 }
 
 inline Brush fromScene(const io::BrushSettings& s) {
@@ -65,9 +73,15 @@ inline TimedEdit fromScene(const io::SceneEdit& edit) {
       timed.command = dab;
       break;
     }
-    case io::EditKind::Global: timed.command = GlobalEdit{fromScene(edit.brush)}; break;
-    case io::EditKind::Relax: timed.command = Relax{}; break;
-    case io::EditKind::ScaleRest: timed.command = ScaleRest{edit.factor}; break;
+    case io::EditKind::Global:
+      timed.command = GlobalEdit{fromScene(edit.brush)};
+      break;
+    case io::EditKind::Relax:
+      timed.command = Relax{};
+      break;
+    case io::EditKind::ScaleRest:
+      timed.command = ScaleRest{edit.factor};
+      break;
   }
   return timed;
 }

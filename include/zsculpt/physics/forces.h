@@ -110,6 +110,8 @@ class ForceKernel {
   void gatherBlock(Index block, Points& force) const;
 
   [[nodiscard]] Index numBlocks() const { return static_cast<Index>(blockStart_.size()) - 1; }
+  /// Vertices in chunks of one degree (the fully vectorised path), for the report.
+  [[nodiscard]] Index uniformVertices() const;
   [[nodiscard]] Index blockBegin(Index block) const { return blockStart_[block]; }
   [[nodiscard]] Index blockEnd(Index block) const { return blockStart_[block + 1]; }
   [[nodiscard]] int maxThreads() const { return static_cast<int>(scratch_.size()); }
@@ -133,9 +135,14 @@ class ForceKernel {
                     Scratch& scratch);
 
   std::vector<Index> blockStart_{0};
-  /// Per half-edge (the CSR of Mesh::vertexNeighborTable): where a force on the vertex
-  /// across it goes in its block's accumulator (own rows first, then the halo).
-  std::vector<Index> target_;
+  /// Chunks of at most chunkVertices_ consecutive vertices, per block (blockChunk_): their
+  /// first vertex, and their vertices' common degree (0 when it varies).
+  std::vector<Index> blockChunk_{0}, chunkStart_, chunkDegree_;
+  /// The half-edges (rows of Mesh::vertexNeighborTable) in the kernel's order: as the mesh
+  /// has them, except in a chunk of one degree d, where arm a of the chunk's vertex i is
+  /// at a L + i (L vertices): the vertex across, the edge, and where a force on the vertex
+  /// across goes in the block's accumulator (own rows first, then the halo).
+  std::vector<Index> neighbour_, edge_, target_;
   std::vector<Index> haloStart_{0};
   /// Per block, what other blocks left for its vertices: (local row, halo position, source
   /// block), sorted by row then source block.
