@@ -859,7 +859,18 @@ void Window::stepScript() {
         ++scriptNext_;
         return;  // one pointer event per frame, as a user's would be
       } else if (action == "screenshot") {
-        takeScreenshot(j.value("name", "script_" + std::to_string(line)), j.value("window", true));
+        const std::string name = j.value("name", "script_" + std::to_string(line));
+        const std::string what = j.value("what", std::string("both"));
+        if (what == "window") {
+          // Only the window with its panels, as NAME.png (for documentation).
+          const fs::path dir = options_.screenshotDir.empty() ? fs::path(".") : fs::path(options_.screenshotDir);
+          io::ensureWritableDirectory(dir.string());
+          pendingWindowCapture_ = (dir / (name + ".png")).string();
+        } else if (what == "model" || what == "both") {
+          takeScreenshot(name, what == "both");
+        } else {
+          throw InvalidInputError("screenshot: what \"" + what + "\": unknown (valid: both, model, window)");
+        }
       } else if (action == "probe") {
         const Index v = j.at("vertex").get<Index>();
         const auto px = projectToPixel(camera_, viewWidth_, viewHeight_, s.position.row(v).transpose());

@@ -178,20 +178,11 @@ void ConstraintSolver::setUp(const Mesh& mesh, const ConstraintSet& constraints)
       planes_.push_back(std::move(plane));
     }
   }
-  // The halo: the support and its one-ring (where the filtered kick of a virtual force lands).
-  halo_ = support_;
-  for (Index v : support_)
-    for (Index w : mesh.vertexNeighbors(v)) halo_.push_back(w);
-  std::sort(halo_.begin(), halo_.end());
-  halo_.erase(std::unique(halo_.begin(), halo_.end()), halo_.end());
-  haloOf_.resize(support_.size());
-  for (size_t a = 0; a < support_.size(); ++a)
-    haloOf_[a] = static_cast<Index>(std::lower_bound(halo_.begin(), halo_.end(), support_[a]) -
-                                    halo_.begin());
   pinForce_.assign(pins_.size(), Vec3::Zero());
   couple_.assign(planes_.size(), Vec3::Zero());
   const Index s = static_cast<Index>(support_.size());
   forces_.setZero(s, 3);
+  coupleForces_.setZero(s, 3);
   predicted_.setZero(s, 3);
   supportEnd_.setZero(s, 3);
   points_.reserve(largestPlane);
@@ -289,13 +280,14 @@ double ConstraintSolver::planeResidual(const ConstraintSet& constraints, const P
 }
 
 void ConstraintSolver::assembleForces() {
-  forces_.setZero();
-  for (size_t k = 0; k < pins_.size(); ++k) forces_.row(pins_[k].local) += pinForce_[k].transpose();
+  coupleForces_.setZero();
   for (size_t q = 0; q < planes_.size(); ++q) {
     const Plane& plane = planes_[q];
     for (size_t k = 0; k < plane.locals.size(); ++k)
-      forces_.row(plane.locals[k]) += (plane.mass[k] * couple_[q].cross(plane.arm[k])).transpose();
+      coupleForces_.row(plane.locals[k]) += (plane.mass[k] * couple_[q].cross(plane.arm[k])).transpose();
   }
+  forces_ = coupleForces_;
+  for (size_t k = 0; k < pins_.size(); ++k) forces_.row(pins_[k].local) += pinForce_[k].transpose();
 }
 
 bool ConstraintSolver::check(const ConstraintSet& constraints, const Points& endPosition,
@@ -420,40 +412,22 @@ void ConstraintSolver::solve(const ConstraintSet& constraints, const StepRespons
   assembleForces();
 }
 
-void ConstraintSolver::velocityCorrection(const ConstraintSet& constraints, const Stepper& stepper,
+void ConstraintSolver::velocityCorrection(const ConstraintSet& constraints, double period,
                                           const Points& startPosition, const Points& endPosition,
                                           const Points& velocity, const VectorX& mass,
                                           std::span<const double> share, Points& delta) const {
-  const double t = stepper.period();
-  delta.setZero(static_cast<Index>(halo_.size()), 3);
+  const double t = period;
+  delta.setZero(static_cast<Index>(support_.size()), 3);
   auto sigma = [&](Index v) { return share.empty() ? 1.0 : share[static_cast<size_t>(v)]; };
-  // 1. The virtual forces act as an impulse at the start of the cycle: they are what moves
-  // the constrained vertices, and their velocity is what that motion needs, no more. The
-  // stepper held them over both half kicks; take the second one back. Default scheme: it
-  // was (T/2) Phi sigma M^-1 f, Phi = 1 - T^2 Omega^2 / 12 (over the support and its one
-  // ring). Symplectic Euler kicks once before it drifts: nothing to take back. Other
-  // schemes: (T/2) sigma M^-1 f on the support (the same to first order).
-  if (stepper.scheme() != Scheme::SymplecticEuler) {
-    const SparseRowMatrix& o2 = stepper.system().omega2();
-    const bool filtered = stepper.scheme() == Scheme::Default;
-    for (size_t h = 0; h < halo_.size(); ++h) {
-      const Index j = halo_[h];
-      const Index own = local(j);
-      Vec3 kick = own >= 0 ? Vec3(sigma(j) / mass[j] * forces_.row(own).transpose()) : Vec3::Zero();
-      if (filtered) {
-        Vec3 spread = Vec3::Zero();
-        for (Index k = o2.outerIndexPtr()[j]; k < o2.outerIndexPtr()[j + 1]; ++k) {
-          const Index l = o2.innerIndexPtr()[k];
-          const Index other = local(l);
-          if (other >= 0) spread += o2.valuePtr()[k] * sigma(l) / mass[l] * forces_.row(other).transpose();
-        }
-        kick -= t * t / 12.0 * spread;
-      }
-      delta.row(static_cast<Index>(h)) = (-0.5 * t * kick).transpose();
-    }
+  // 1. A plane's couple acts as an impulse at the start of the cycle: the stepper held it
+  // over the whole cycle, and its second half kick, laid on arms that have turned since,
+  // would push the plane's vertices outwards; take it back.
+  for (size_t a = 0; a < support_.size(); ++a) {
+    const Index v = support_[a];
+    delta.row(static_cast<Index>(a)) = (-0.5 * t * sigma(v) / mass[v]) * coupleForces_.row(static_cast<Index>(a));
   }
-  auto current = [&](Index v) -> Vec3 {
-    return (velocity.row(v) + delta.row(haloOf_[static_cast<size_t>(local(v))])).transpose();
+  auto current = [&](Index l) -> Vec3 {
+    return (velocity.row(support_[static_cast<size_t>(l)]) + delta.row(l)).transpose();
   };
   // 2. A constrained plane does not turn across its normal: its angular velocity about its
   // centre of mass (least squares), less the part about the normal, is removed.
@@ -464,7 +438,7 @@ void ConstraintSolver::velocityCorrection(const ConstraintSet& constraints, cons
       const Index v = support_[static_cast<size_t>(l)];
       total += mass[v];
       centre += mass[v] * endPosition.row(v).transpose();
-      mean += mass[v] * current(v);
+      mean += mass[v] * current(l);
     }
     centre /= total;
     mean /= total;
@@ -474,7 +448,7 @@ void ConstraintSolver::velocityCorrection(const ConstraintSet& constraints, cons
       const Index v = support_[static_cast<size_t>(l)];
       const Vec3 arm = endPosition.row(v).transpose() - centre;
       inertia += mass[v] * armInertia(arm);
-      angular += mass[v] * arm.cross(current(v) - mean);
+      angular += mass[v] * arm.cross(current(l) - mean);
     }
     Vec3 omega = pseudoInverse(inertia) * angular;
     const Vec3 normal = constraints.get(plane.id).value;
@@ -483,7 +457,7 @@ void ConstraintSolver::velocityCorrection(const ConstraintSet& constraints, cons
       const Index v = support_[static_cast<size_t>(l)];
       if (!(sigma(v) > 0.0)) continue;
       const Vec3 arm = endPosition.row(v).transpose() - centre;
-      delta.row(haloOf_[static_cast<size_t>(l)]) -= omega.cross(arm).transpose();
+      delta.row(l) -= omega.cross(arm).transpose();
     }
   }
   // 3. A pinned vertex moves as its target did over the cycle.
@@ -491,7 +465,7 @@ void ConstraintSolver::velocityCorrection(const ConstraintSet& constraints, cons
     const Index v = support_[static_cast<size_t>(pin.local)];
     if (!(sigma(v) > 0.0)) continue;
     const Eigen::RowVector3d wanted = (endPosition.row(v) - startPosition.row(v)) / t;
-    delta.row(haloOf_[static_cast<size_t>(pin.local)]) = wanted - velocity.row(v);
+    delta.row(pin.local) = wanted - velocity.row(v);
   }
 }
 

@@ -420,13 +420,17 @@ void preflightOff(std::istream& in, const std::string& name, std::uintmax_t size
 
 void preflightPly(std::istream& in, const std::string& name, std::uintmax_t size) {
   std::string line;
-  bool ascii = false;
+  bool ascii = false, magic = false, ended = false;
   std::uintmax_t total = 0;
   for (int lines = 0; lines < 10000 && std::getline(in, line); ++lines) {
     std::istringstream words(line);
     std::string keyword;
     words >> keyword;
-    if (keyword == "end_header") break;
+    if (lines == 0) magic = line.rfind("ply", 0) == 0 || line.rfind("PLY", 0) == 0;  // as assimp
+    if (keyword == "end_header") {
+      ended = true;
+      break;
+    }
     if (keyword == "format") {
       std::string format;
       words >> format;
@@ -439,6 +443,9 @@ void preflightPly(std::istream& in, const std::string& name, std::uintmax_t size
       total += count;
     }
   }
+  // Assimp 5.2 loops forever on a PLY header without its end_header line
+  // (tests/regressions/mesh/ply_without_end_header_hangs).
+  if (magic && !ended) preflightError(name, "the header has no end_header line");
   // An element takes at least one byte in binary and two ("0\n") in ASCII.
   checkDeclaredCount(name, total, "elements in all", ascii ? 2 : 1, size);
 }

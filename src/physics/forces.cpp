@@ -317,6 +317,27 @@ inline double angleBeta(double s, double c, double rest) {
     FB2 = sb_ * ((uz) - (c) * (wz));                                                      \
   } while (0)
 
+// radialBatch for a chunk without angle springs: the arms stay as they are.
+ZSCULPT_KERNEL void radialOnlyBatch(Index count, const Index* __restrict edge,
+                                    const double* __restrict edgeKappa,
+                                    const double* __restrict restLength,
+                                    const double* __restrict ax, const double* __restrict ay,
+                                    const double* __restrict az,
+                                    const double* __restrict length, double* __restrict gx,
+                                    double* __restrict gy, double* __restrict gz) {
+#pragma omp simd
+  for (Index j = 0; j < count; ++j) {
+    const double kappa = edgeKappa[edge[j]], rest = restLength[edge[j]], l = length[j];
+    const bool positive = l > 0.0;
+    const double safe = select(positive, l, 1.0);
+    const double stretched = select(positive, kappa * (l - rest) / safe, 0.0);
+    const double coefficient = select(kappa == 0.0, 0.0, select(rest == 0.0, kappa, stretched));
+    gx[j] = coefficient * ax[j];
+    gy[j] = coefficient * ay[j];
+    gz[j] = coefficient * az[j];
+  }
+}
+
 // Cosine and squared sine of the angle between the unit arms p[k] and q[k].
 ZSCULPT_KERNEL void angleCosSin(Index m, const Index* __restrict p, const Index* __restrict q,
                                 const double* __restrict ax, const double* __restrict ay,
@@ -466,8 +487,10 @@ ForceKernel::ForceKernel(const Model& model, int maxThreads) {
   const Index* off = neighbours.offsets.data();
   const Index* nbr = neighbours.indices.data();
 
-  // Blocks of consecutive vertices, an even count when there is more than one.
+  // Blocks of consecutive vertices, an even count when there is more than one (two threads
+  // share them evenly); from a thousand vertices on, at least two.
   Index blocks = std::max<Index>(1, (n + kBlockVertices - 1) / kBlockVertices);
+  if (n >= 1024 && blocks < 2) blocks = 2;
   if (blocks > 1 && blocks % 2 == 1) ++blocks;
   blockStart_.resize(static_cast<size_t>(blocks) + 1);
   for (Index b = 0; b <= blocks; ++b)
@@ -859,8 +882,14 @@ void ForceKernel::scatterBlock(const Model& model, const Points& position, Point
     }
     Eigen::Map<Eigen::ArrayXd> lengths(len, arms);
     lengths = lengths.sqrt();
-    radialBatch(arms, edge_.data() + h0, edgeKappa_.data(), prop.restLength.data(), ax, ay, az,
-                len, il, s.gx.data(), s.gy.data(), s.gz.data());
+    bool chunkAngles = false;
+    for (Index v = c0; v < c1 && !chunkAngles; ++v) chunkAngles = kappaTheta[v] != 0.0;
+    if (chunkAngles)
+      radialBatch(arms, edge_.data() + h0, edgeKappa_.data(), prop.restLength.data(), ax, ay,
+                  az, len, il, s.gx.data(), s.gy.data(), s.gz.data());
+    else
+      radialOnlyBatch(arms, edge_.data() + h0, edgeKappa_.data(), prop.restLength.data(), ax, ay,
+                      az, len, s.gx.data(), s.gy.data(), s.gz.data());
     // Each vertex adds its edges' forces in increasing edge index (Mesh::vertexEdges, the arm
     // order), as accumulateInternalForces does: without angle springs the forces are
     // bit-identical to the reference.
@@ -883,10 +912,9 @@ void ForceKernel::scatterBlock(const Model& model, const Points& position, Point
     // Angle springs (section 5.2), centre by centre. Uniform chunks and runs of one degree
     // take the by-slot path, the others the general one; both do the same arithmetic and
     // deposit in vertex order, so the split changes nothing in the result.
+    if (!chunkAngles) continue;
     if (uniform) {
-      bool any = false;
-      for (Index v = c0; v < c1 && !any; ++v) any = kappaTheta[v] != 0.0;
-      if (!any || uniform < 2) continue;
+      if (uniform < 2) continue;
       anyAngle = true;
       slotAngles(c0, count, uniform, ax, ay, az, il,
                  [&](Index i, Index a) { return h0 + a * count + i; });

@@ -1,7 +1,11 @@
 #include "zsculpt/physics/stepper.h"
 
+#include <bit>
+#include <chrono>
 #include <cmath>
+#include <cstdint>
 #include <limits>
+#include <type_traits>
 #include <unsupported/Eigen/MatrixFunctions>
 
 #include "zsculpt/core/errors.h"
@@ -78,12 +82,18 @@ inline void rowProduct(const SparseRowMatrix& a, const double* x, Index i, doubl
 }
 
 bool rowsAreZero(const Points& x, Index begin, Index end) {
+  // The bits of every value but its sign, or-ed together (vectorises; NaN is not zero).
   const double* p = x.data() + 3 * static_cast<size_t>(begin);
-  const double* q = x.data() + 3 * static_cast<size_t>(end);
-  bool zero = true;
-  for (; p < q; ++p) zero &= (*p == 0.0);
-  return zero;
+  const size_t count = 3 * static_cast<size_t>(end - begin);
+  std::uint64_t bits = 0;
+  for (size_t k = 0; k < count; ++k) bits |= std::bit_cast<std::uint64_t>(p[k]) << 1;
+  return bits == 0;
 }
+
+// Models up to this many vertices keep their accelerations in an array for the filter's
+// product (it stays in cache); larger ones make them on the fly from the forces, saving
+// the array's memory traffic. The values are the same either way.
+constexpr Index kStoredAccelerationVertices = 65536;
 
 }  // namespace
 
@@ -91,13 +101,32 @@ int automaticThreads(Index vertices) {
   return vertices >= kParallelMinVertices ? maximumThreads() : 1;
 }
 
+void Stepper::ThreadTuner::record(double seconds) {
+  if (phase < 2) {
+    best[phase] = count == 0 ? seconds : std::min(best[phase], seconds);
+    if (++count < kProbeSteps) return;
+    count = 0;
+    if (++phase == 2) {
+      chosen = best[1] < best[0] ? candidates[1] : candidates[0];
+      held = 0.0;
+    }
+    return;
+  }
+  held += seconds;
+  if (held >= kHoldSeconds) phase = 0;
+}
+
 Stepper::Stepper(const Model& model, Scheme scheme, double period, const StepperOptions& options)
     : model_(model), scheme_(scheme), period_(period), options_(options), system_(model) {
   if (!(period > 0.0) || !std::isfinite(period))
     throw InvalidInputError("time step " + std::to_string(period) + " must be positive");
   const Index n = model.mesh.numVertices();
-  threads_ = options.threads > 0 ? options.threads : automaticThreads(n);
-  forces_ = ForceKernel(model, threads_);
+  const int most = options.threads > 0 ? options.threads : automaticThreads(n);
+  threads_ = most;
+  tuning_ = options.threads <= 0 && most > 1;
+  tuner_.candidates[0] = most;
+  tuner_.candidates[1] = 1;
+  forces_ = ForceKernel(model, most);
   for (Points* p : {&internal_, &previousInternal_, &acceleration_, &kick_, &totalForce_})
     p->setZero(n, 3);
   if (scheme_ == Scheme::Paper || scheme_ == Scheme::Exact)
@@ -191,6 +220,8 @@ void Stepper::step(State& state, const Points& external, std::span<const double>
                      state.velocity.rows() == model_.mesh.numVertices() &&
                      external.rows() == model_.mesh.numVertices(),
                  "state or external forces do not match the model");
+  const auto start = std::chrono::steady_clock::now();
+  if (tuning_) threads_ = tuner_.next();
   switch (scheme_) {
     case Scheme::Default: stepDefault(state, external, share); break;
     case Scheme::Paper: stepPaper(state, external, share); break;
@@ -199,6 +230,9 @@ void Stepper::step(State& state, const Points& external, std::span<const double>
     case Scheme::ImplicitEuler: stepImplicitEuler(state, external, share); break;
   }
   state.time += period_;
+  if (tuning_)
+    tuner_.record(
+        std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count());
 }
 
 bool Stepper::accelerationRows(Index block, const Points& internal, const Points& external,
@@ -277,6 +311,7 @@ void Stepper::stepDefault(State& s, const Points& external, std::span<const doub
   double* r = s.position.data();
   double* v = s.velocity.data();
   double* kick = kick_.data();
+  const bool stored = model_.mesh.numVertices() <= kStoredAccelerationVertices;
   bool externalZero = true;
 #pragma omp parallel num_threads(threads_) if (threads_ > 1)
   {
@@ -287,46 +322,71 @@ void Stepper::stepDefault(State& s, const Points& external, std::span<const doub
     bool zero = true;
     for (Index b = 0; b < blocks; ++b) zero = zero && externalZero_[static_cast<size_t>(b)];
     const bool reuse = reuseCandidate && zero;
-    // a_j from the internal forces f, as accelerationRows makes it (and the total force).
-    auto acceleration = [&](const double* f, Index j, double out[3], double* total = nullptr) {
+    // a_j from the internal forces f, as accelerationRows makes it (and the total force),
+    // and (T/2) Phi a at row i: (T/2) a_i - (T^3/24) (Omega^2 a)_i. Specialised on whether
+    // there are loads, gravity and an elastic share, so that the common case is a tight loop.
+    auto withCase = [&](auto&& body) {
+      auto s3 = [&](auto l, auto g3) {
+        share.empty() ? body(l, g3, std::false_type{}) : body(l, g3, std::true_type{});
+      };
+      auto s2 = [&](auto l) { gravity ? s3(l, std::true_type{}) : s3(l, std::false_type{}); };
+      zero ? s2(std::false_type{}) : s2(std::true_type{});
+    };
+    auto acceleration = [&](auto loads, auto withGravity, auto withShare, const double* f,
+                            Index j, double a[3], double* sum) {
       const size_t k = 3 * static_cast<size_t>(j);
       double x = f[k], y = f[k + 1], z = f[k + 2];
-      if (!zero) {
+      if constexpr (decltype(loads)::value) {
         x += e[k];
         y += e[k + 1];
         z += e[k + 2];
       }
-      if (gravity) {
+      if constexpr (decltype(withGravity)::value) {
         x += mass[j] * g.x();
         y += mass[j] * g.y();
         z += mass[j] * g.z();
       }
-      if (total) {
-        total[0] = x;
-        total[1] = y;
-        total[2] = z;
+      if (sum) {
+        sum[0] = x;
+        sum[1] = y;
+        sum[2] = z;
       }
-      const double scale =
-          share.empty() ? inverseMass[j] : share[static_cast<size_t>(j)] * inverseMass[j];
-      out[0] = scale * x;
-      out[1] = scale * y;
-      out[2] = scale * z;
+      double scale = inverseMass[j];
+      if constexpr (decltype(withShare)::value) scale = share[static_cast<size_t>(j)] * scale;
+      a[0] = scale * x;
+      a[1] = scale * y;
+      a[2] = scale * z;
     };
-    // (T/2) Phi a at row i: (T/2) a_i - (T^3/24) (Omega^2 a)_i.
-    auto filteredKick = [&](const double* f, Index i, double* out, double* total = nullptr) {
+    auto filteredKick = [&](auto loads, auto withGravity, auto withShare, const double* f,
+                            Index i, double* out, double* total) {
       double wx = 0.0, wy = 0.0, wz = 0.0;
       for (Index p = outer[i]; p < outer[i + 1]; ++p) {
         double a[3];
-        acceleration(f, inner[p], a);
+        acceleration(loads, withGravity, withShare, f, inner[p], a, nullptr);
         wx += value[p] * a[0];
         wy += value[p] * a[1];
         wz += value[p] * a[2];
       }
       double a[3];
-      acceleration(f, i, a, total);
+      acceleration(loads, withGravity, withShare, f, i, a, total);
       out[0] = half * a[0] - filter * wx;
       out[1] = half * a[1] - filter * wy;
       out[2] = half * a[2] - filter * wz;
+    };
+    // The same from stored accelerations.
+    auto storedKick = [&](Index i, double* out) {
+      const double* a = acceleration_.data();
+      double wx = 0.0, wy = 0.0, wz = 0.0;
+      for (Index p = outer[i]; p < outer[i + 1]; ++p) {
+        const double* aj = a + 3 * static_cast<size_t>(inner[p]);
+        wx += value[p] * aj[0];
+        wy += value[p] * aj[1];
+        wz += value[p] * aj[2];
+      }
+      const double* ai = a + 3 * static_cast<size_t>(i);
+      out[0] = half * ai[0] - filter * wx;
+      out[1] = half * ai[1] - filter * wy;
+      out[2] = half * ai[2] - filter * wz;
     };
     if (!reuse && !startCached) {
       forces_.scatter(model_, s.position, internal_);
@@ -336,31 +396,52 @@ void Stepper::stepDefault(State& s, const Points& external, std::span<const doub
     // Kick and drift; with loads, the total force at the start on the way (lastTotalForce).
     const double* f0 = internal_.data();
     double* total = zero ? nullptr : totalForce_.data();
+    withCase([&](auto loads, auto withGravity, auto withShare) {
 #pragma omp for schedule(static)
-    for (Index b = 0; b < blocks; ++b)
-      for (Index i = forces_.blockBegin(b); i < forces_.blockEnd(b); ++i) {
-        const size_t k = 3 * static_cast<size_t>(i);
-        if (!reuse) filteredKick(f0, i, kick + k, total ? total + k : nullptr);
-        const double damp = dampHalf_[i];
-        for (int d = 0; d < 3; ++d) {
-          v[k + d] = v[k + d] * damp + kick[k + d];
-          r[k + d] += t * v[k + d];
+      for (Index b = 0; b < blocks; ++b)
+        for (Index i = forces_.blockBegin(b); i < forces_.blockEnd(b); ++i) {
+          const size_t k = 3 * static_cast<size_t>(i);
+          if (!reuse)
+            filteredKick(loads, withGravity, withShare, f0, i, kick + k,
+                         total ? total + k : nullptr);
+          const double damp = dampHalf_[i];
+          for (int d = 0; d < 3; ++d) {
+            v[k + d] = v[k + d] * damp + kick[k + d];
+            r[k + d] += t * v[k + d];
+          }
         }
-      }
+    });
     // Internal forces at the new position.
     forces_.scatter(model_, s.position, previousInternal_);
-#pragma omp for schedule(static)
-    for (Index b = 0; b < blocks; ++b) forces_.gatherBlock(b, previousInternal_);
-    // Second kick and damping.
     const double* f1 = previousInternal_.data();
+    if (stored) {
+      withCase([&](auto loads, auto withGravity, auto withShare) {
 #pragma omp for schedule(static)
-    for (Index b = 0; b < blocks; ++b)
-      for (Index i = forces_.blockBegin(b); i < forces_.blockEnd(b); ++i) {
-        const size_t k = 3 * static_cast<size_t>(i);
-        filteredKick(f1, i, kick + k);
-        const double damp = dampHalf_[i];
-        for (int d = 0; d < 3; ++d) v[k + d] = (v[k + d] + kick[k + d]) * damp;
-      }
+        for (Index b = 0; b < blocks; ++b) {
+          forces_.gatherBlock(b, previousInternal_);
+          for (Index i = forces_.blockBegin(b); i < forces_.blockEnd(b); ++i)
+            acceleration(loads, withGravity, withShare, f1, i,
+                         acceleration_.data() + 3 * static_cast<size_t>(i), nullptr);
+        }
+      });
+    } else {
+#pragma omp for schedule(static)
+      for (Index b = 0; b < blocks; ++b) forces_.gatherBlock(b, previousInternal_);
+    }
+    // Second kick and damping.
+    withCase([&](auto loads, auto withGravity, auto withShare) {
+#pragma omp for schedule(static)
+      for (Index b = 0; b < blocks; ++b)
+        for (Index i = forces_.blockBegin(b); i < forces_.blockEnd(b); ++i) {
+          const size_t k = 3 * static_cast<size_t>(i);
+          if (stored)
+            storedKick(i, kick + k);
+          else
+            filteredKick(loads, withGravity, withShare, f1, i, kick + k, nullptr);
+          const double damp = dampHalf_[i];
+          for (int d = 0; d < 3; ++d) v[k + d] = (v[k + d] + kick[k + d]) * damp;
+        }
+    });
 #pragma omp single
     externalZero = zero;
   }

@@ -342,7 +342,15 @@ void Simulation::finishRigid() {
     gatherLoads(elasticStart_.time, trial_.position, loadForce_);
     totalForce_ = baseForce_ + loadForce_;
   }
-  // (The virtual forces act at the start of the cycle only: no end kick from them.)
+  // Pins' virtual forces are held over the cycle like any load; planes' couples act at its
+  // start only (see ConstraintSolver::velocityCorrection).
+  if (!constraints_.empty()) {
+    const auto support = solver_.support();
+    const Points& all = solver_.forces();
+    const Points& couples = solver_.coupleForces();
+    for (size_t a = 0; a < support.size(); ++a)
+      totalForce_.row(support[a]) += all.row(static_cast<Index>(a)) - couples.row(static_cast<Index>(a));
+  }
   Vec3 force, torque;
   weightedResultant(chi_, trial_.position, totalForce_, end_.centre, force, torque);
   rigidMomentum_ = rigidKick(drift_.half, force, torque, t, rigidDamping_);
@@ -397,7 +405,7 @@ void Simulation::coupledStep() {
     const Index s = static_cast<Index>(solver_.support().size());
     supportStart_.setZero(s, 3);
     supportElastic_.setZero(s, 3);
-    velocityDelta_.setZero(static_cast<Index>(solver_.halo().size()), 3);
+    velocityDelta_.setZero(s, 3);
     supportChi_.assign(static_cast<size_t>(s), 0.0);
     warnedUnmet_ = false;
   }
@@ -477,13 +485,13 @@ void Simulation::coupledStep() {
   }
   state_.time = trial_.time;
   if (constrained) {
-    solver_.velocityCorrection(constraints_, *stepper_, elasticStart_.position, state_.position,
+    solver_.velocityCorrection(constraints_, t, elasticStart_.position, state_.position,
                                state_.velocity, mass,
                                rigidActive_ ? std::span<const double>(sigma_) : std::span<const double>(),
                                velocityDelta_);
-    const auto halo = solver_.halo();
-    for (size_t a = 0; a < halo.size(); ++a) {
-      const Index v = halo[a];
+    const auto support = solver_.support();
+    for (size_t a = 0; a < support.size(); ++a) {
+      const Index v = support[a];
       state_.velocity.row(v) += velocityDelta_.row(static_cast<Index>(a));
       if (rigidActive_) deformation_.row(v) += velocityDelta_.row(static_cast<Index>(a));
     }
@@ -522,17 +530,20 @@ void Simulation::addToLedger(const Vec3& centreHint, const Points& velocityDelta
   for (Index i = 0; i < state_.position.rows(); ++i)
     endCentre += mass[i] * state_.position.row(i).transpose();
   endCentre /= mass.sum();
-  for (Index v : solver_.support()) {
-    // The elastic stepper held the virtual force over the cycle (velocityCorrection then
-    // took its second half kick back, counted below); the rigid body got its first half.
+  const auto support = solver_.support();
+  for (size_t a = 0; a < support.size(); ++a) {
+    // Pins' forces act over the whole cycle. A couple: the elastic stepper held it (its
+    // second half kick is taken back in velocityDelta, counted below), the rigid body got
+    // its first half kick.
+    const Index v = support[a];
     const double share = rigidActive_ ? sigma_[static_cast<size_t>(v)] + 0.5 * chi_[static_cast<size_t>(v)] : 1.0;
-    const Vec3 f = share * constraintForce_.row(v).transpose();
+    const Vec3 couple = solver_.coupleForces().row(static_cast<Index>(a)).transpose();
+    const Vec3 f = Vec3(constraintForce_.row(v).transpose()) - couple + share * couple;
     ledger_.constraints += t * f;
     ledger_.constraintsAngular += t * (Vec3(start.row(v).transpose()) - centre).cross(f);
   }
-  const auto halo = solver_.halo();
-  for (size_t a = 0; a < halo.size(); ++a) {
-    const Index v = halo[a];
+  for (size_t a = 0; a < support.size(); ++a) {
+    const Index v = support[a];
     const Vec3 kick = mass[v] * velocityDelta.row(static_cast<Index>(a)).transpose();
     ledger_.constraints += kick;
     ledger_.constraintsAngular += (Vec3(state_.position.row(v).transpose()) - endCentre).cross(kick);

@@ -105,18 +105,18 @@ class ConstraintSolver {
   /// Improves the forces against `response` (anchored at the last computed step).
   void solve(const ConstraintSet& constraints, const StepResponse& response,
              double positionTolerance, double normalTolerance);
-  /// Velocity consistency at the end of the cycle, as velocity changes of the halo vertices
-  /// (`delta`, |halo()| x 3): the virtual forces count as an impulse at the start of the
-  /// cycle (the stepper's second half kick of them is taken back), a pinned vertex moves as
-  /// its target did ((end - start) / T), a constrained plane does not turn across its normal.
-  /// Vertices with no elastic share (sigma = 0) move with the rigid body: steps 2 and 3
-  /// leave them alone.
-  void velocityCorrection(const ConstraintSet& constraints, const Stepper& stepper,
+  /// The part of forces() that are the planes' couples (|S| x 3).
+  [[nodiscard]] const Points& coupleForces() const { return coupleForces_; }
+  /// Velocity consistency at the end of the cycle, as velocity changes of the support
+  /// vertices (`delta`, |S| x 3): a plane's couple counts as an impulse at the start of the
+  /// cycle (the stepper's second half kick of it is taken back), a constrained plane does not
+  /// turn across its normal, a pinned vertex moves as its target did ((end - start) / T).
+  /// Vertices with no elastic share (sigma = 0) move with the rigid body: the last two leave
+  /// them alone.
+  void velocityCorrection(const ConstraintSet& constraints, double period,
                           const Points& startPosition, const Points& endPosition,
                           const Points& velocity, const VectorX& mass,
                           std::span<const double> elasticShare, Points& delta) const;
-  /// The support and its one-ring, sorted: the rows velocityCorrection() writes.
-  [[nodiscard]] std::span<const Index> halo() const { return halo_; }
 
  private:
   struct Pin {
@@ -141,12 +141,10 @@ class ConstraintSolver {
 
   std::vector<Index> support_;
   std::vector<Index> localOf_;  // vertex -> position in support_, or -1
-  std::vector<Index> halo_;     // support_ and its one-ring
-  std::vector<Index> haloOf_;   // support position -> position in halo_
   std::vector<Pin> pins_;
   std::vector<Plane> planes_;
   std::vector<Vec3> pinForce_, couple_;
-  Points forces_, predicted_, supportEnd_;
+  Points forces_, coupleForces_, predicted_, supportEnd_;
   std::vector<Vec3> points_;
   double residual(const ConstraintSet& constraints, const StepResponse& response, VectorX& out,
                   double& positionError, double& normalError);

@@ -57,15 +57,17 @@ struct StepperOptions {
   bool storedMatrices = false;
   /// Exact scheme: refuse models larger than this (dense eigendecomposition).
   Index exactMaxVertices = 4000;
-  /// Threads for the step: 0 picks all of OpenMP's (OMP_NUM_THREADS) for models of
-  /// kParallelMinVertices or more and one thread below (where waking a second thread costs
-  /// more than it saves). The result does not depend on it.
+  /// Threads for the step. 0 (automatic): one below kParallelMinVertices vertices; above,
+  /// the stepper times a few steps with all of OpenMP's threads (OMP_NUM_THREADS) and a few
+  /// with one, keeps the faster and checks again every few seconds (a second thread only
+  /// helps when a core is free: on a loaded machine waiting for it costs more than it
+  /// saves). The result does not depend on the thread count, so switching is invisible.
   int threads = 0;
 };
 
 /// Below this many vertices the automatic thread count is one.
-inline constexpr Index kParallelMinVertices = 8000;
-/// The automatic thread count for a model of this many vertices (StepperOptions::threads 0).
+inline constexpr Index kParallelMinVertices = 1024;
+/// The most threads the automatic choice uses for a model of this many vertices.
 int automaticThreads(Index vertices);
 
 class Stepper {
@@ -99,7 +101,7 @@ class Stepper {
   }
   /// Total force (internal + external + gravity) at the start of the last step.
   [[nodiscard]] const Points& lastTotalForce() const;
-  /// Threads the step uses.
+  /// Threads the last step used.
   [[nodiscard]] int threads() const { return threads_; }
   /// Bytes held by the stepper (matrices, caches, work buffers), for the memory report.
   [[nodiscard]] size_t bytes() const;
@@ -125,6 +127,22 @@ class Stepper {
   double period_;
   StepperOptions options_;
   int threads_ = 1;
+  // Automatic thread count: probes kProbeSteps steps with each candidate, keeps the faster
+  // (smallest step time) for kHoldSeconds of stepping, then probes again.
+  struct ThreadTuner {
+    static constexpr int kProbeSteps = 4;
+    static constexpr double kHoldSeconds = 2.0;
+    int candidates[2] = {1, 1};
+    double best[2] = {0.0, 0.0};
+    int phase = 0;  // 0, 1: probing candidates[phase]; 2: holding `chosen`
+    int count = 0;
+    int chosen = 1;
+    double held = 0.0;
+    [[nodiscard]] int next() const { return phase < 2 ? candidates[phase] : chosen; }
+    void record(double seconds);
+  };
+  bool tuning_ = false;
+  ThreadTuner tuner_;
   SystemMatrices system_;
   std::unique_ptr<TransformationMatrices> transformation_;
   ForceKernel forces_;
