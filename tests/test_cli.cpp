@@ -11,6 +11,8 @@
 #include <sstream>
 #include <string>
 
+#include "zsculpt/render/image.h"
+
 namespace fs = std::filesystem;
 
 namespace {
@@ -64,7 +66,8 @@ void expectOneLineError(const Result& r, int status, const std::string& mentions
 }  // namespace
 
 TEST_F(Cli, EverySubcommandHasHelp) {
-  for (const char* sub : {"info", "simulate", "reproduce"}) {
+  for (const char* sub : {"info", "simulate", "subdivide", "render", "demo", "reproduce", "bench",
+                          "open", "replay"}) {
     const Result r = run(std::string(sub) + " --help");
     EXPECT_EQ(r.status, 0) << sub;
     EXPECT_NE(r.out.find("Usage"), std::string::npos) << sub;
@@ -207,4 +210,111 @@ TEST_F(Cli, ReproduceFigure3FindsThePapersThreshold) {
       EXPECT_NEAR(ratio, 1.0705, 0.005);  // x = 12 at lambda_0
     }
   }
+}
+
+namespace {
+
+/// Share of pixels that differ by more than 24 from the background: the vertical gradient,
+/// read at the right edge of each row (models are framed with a margin).
+double coverage(const zsculpt::render::Image& image) {
+  long covered = 0;
+  for (int y = 0; y < image.height; ++y)
+    for (int x = 0; x < image.width; ++x) {
+      const std::uint8_t* bg = image.pixel(image.width - 1, y);
+      const std::uint8_t* p = image.pixel(x, y);
+      const int d = std::abs(p[0] - bg[0]) + std::abs(p[1] - bg[1]) + std::abs(p[2] - bg[2]);
+      covered += d > 24;
+    }
+  return static_cast<double>(covered) / (static_cast<double>(image.width) * image.height);
+}
+
+long lineCount(const std::string& text) { return std::count(text.begin(), text.end(), '\n'); }
+
+}  // namespace
+
+TEST_F(Cli, RenderWritesFramesOfTheAskedSizeAPlotAndTheDiagnostics) {
+  const Result r = run("render builtin:torus --out " + path("out") +
+                       " --frames 3 --steps 40 --size 320x200 --perturb 0.3 --seed 7 --json");
+  ASSERT_EQ(r.status, 0) << r.err;
+  const auto j = nlohmann::json::parse(r.out);
+  ASSERT_EQ(j["frames"].size(), 3u);
+  std::vector<zsculpt::render::Image> frames;
+  for (const auto& f : j["frames"]) {
+    frames.push_back(zsculpt::render::readPng(f.get<std::string>()));
+    EXPECT_EQ(frames.back().width, 320);
+    EXPECT_EQ(frames.back().height, 200);
+    // The torus fills a good part of the picture, not all of it.
+    const double share = coverage(frames.back());
+    EXPECT_GT(share, 0.15) << f;
+    EXPECT_LT(share, 0.8) << f;
+  }
+  // A moving model: the frames differ.
+  EXPECT_GT(zsculpt::render::meanAbsoluteDifference(frames[0], frames[2]), 1.0 / 255.0);
+  // One diagnostics row per step and the step 0 row, under the contract's header.
+  const std::string csv = slurp(j["diagnostics"].get<std::string>());
+  EXPECT_EQ(csv.rfind("step,time,kinetic,potential,total,px,py,pz,lx,ly,lz\n", 0), 0u);
+  EXPECT_EQ(lineCount(csv), 1 + 41);
+  const auto plot = zsculpt::render::readPng(j["plot"].get<std::string>());
+  EXPECT_GT(plot.width, 100);
+  EXPECT_GT(plot.height, 100);
+}
+
+TEST_F(Cli, RenderOfAStillModelGivesIdenticalFrames) {
+  const Result r = run("render builtin:dodecahedron --out " + path("out") +
+                       " --frames 2 --every 25 --size 240x180 --property stiffness --json");
+  ASSERT_EQ(r.status, 0) << r.err;
+  const auto j = nlohmann::json::parse(r.out);
+  ASSERT_EQ(j["frames"].size(), 2u);
+  EXPECT_EQ(j["steps"], 25);
+  const auto a = zsculpt::render::readPng(j["frames"][0].get<std::string>());
+  const auto b = zsculpt::render::readPng(j["frames"][1].get<std::string>());
+  // Only the caption (the time) may differ: compare above it.
+  double worst = 0.0;
+  for (int y = 0; y < a.height * 3 / 4; ++y)
+    for (int x = 0; x < a.width; ++x)
+      for (int c = 0; c < 3; ++c)
+        worst = std::max(worst, std::abs(double(a.pixel(x, y)[c]) - double(b.pixel(x, y)[c])));
+  EXPECT_EQ(worst, 0.0);
+  EXPECT_GT(coverage(a), 0.05);
+}
+
+TEST_F(Cli, RenderRefusesBadInputBeforeAnyWork) {
+  expectOneLineError(run("render builtin:torus --out " + path("a") + " --size 0x100"), 2, "--size");
+  expectOneLineError(run("render builtin:torus --out " + path("b") + " --size 100000x100"), 2, "--size");
+  expectOneLineError(run("render builtin:torus --out " + path("c") + " --property colour"), 2, "colour");
+  expectOneLineError(run("render builtin:torus --out " + path("d") + " --levels 9"), 2, "--levels");
+  expectOneLineError(run("render builtin:torus --out /proc/zsculpt/frames"), 2, "/proc/zsculpt");
+  expectOneLineError(run("render " + path("missing.obj") + " --out " + path("e")), 2, "missing.obj");
+  for (const char* d : {"a", "b", "c", "d"}) {
+    std::error_code ec;
+    EXPECT_TRUE(!fs::exists(path(d)) || fs::is_empty(path(d), ec)) << d;
+  }
+}
+
+TEST_F(Cli, RenderDivergenceExitsThreeKeepingWhatWasRendered) {
+  const Result r = run("render builtin:dodecahedron --scheme paper --perturb 0.05 --dt-ratio 1.3 "
+                       "--allow-unstable --steps 20000 --every 50 --size 160x120 --out " + path("out") +
+                       " --state-out " + path("s.csv") + " --json");
+  EXPECT_EQ(r.status, 3) << r.err;
+  const auto j = nlohmann::json::parse(r.out);
+  EXPECT_EQ(j["diverged"], true);
+  EXPECT_GE(j["frames"].size(), 1u);
+  for (const auto& f : j["frames"]) EXPECT_TRUE(fs::exists(f.get<std::string>()));
+  const std::string state = slurp(path("s.csv"));
+  EXPECT_EQ(lineCount(state), 21);
+  EXPECT_EQ(state.find("nan"), std::string::npos);
+  EXPECT_TRUE(fs::exists(j["plot"].get<std::string>()));
+}
+
+TEST_F(Cli, DemoWritesTheDefaultSceneToFramesAndPlotsAndPrintsThePaths) {
+  const Result r = run("demo --out " + path("demo") + " --frames 4 --size 320x180");
+  ASSERT_EQ(r.status, 0) << r.err;
+  for (const char* f : {"frame_0000.png", "frame_0003.png", "diagnostics.csv", "energy_momentum.png"}) {
+    EXPECT_TRUE(fs::exists(dir_ / "demo" / f)) << f;
+    EXPECT_NE(r.out.find(f), std::string::npos) << r.out;
+  }
+  // The default scene pushes the torus: it moves, and energy is put in.
+  const auto first = zsculpt::render::readPng(path("demo/frame_0000.png"));
+  const auto last = zsculpt::render::readPng(path("demo/frame_0003.png"));
+  EXPECT_GT(zsculpt::render::meanAbsoluteDifference(first, last), 5.0 / 255.0);
 }

@@ -17,6 +17,8 @@ int run(int argc, char** argv) {
   addReproduceCommand(app, commands);
   addBenchCommand(app, commands);
   addSubdivideCommand(app, commands);
+  addRenderCommand(app, commands);
+  addDemoCommand(app, commands);
   addOpenCommand(app, commands);
   addReplayCommand(app, commands);
   try {

@@ -10,9 +10,8 @@
 
 #include "commands.h"
 #include "model_options.h"
+#include "timed_edits.h"
 #include "zsculpt/core/errors.h"
-#include "zsculpt/editing/local_update.h"
-#include "zsculpt/editing/scene_edits.h"
 #include "zsculpt/io/atomic_file.h"
 #include "zsculpt/io/state_io.h"
 
@@ -26,46 +25,6 @@ struct SimulateOptions {
   bool verifyMatrices = false;
 };
 
-/// The scene's timed edits (paper section 3, "Dynamic Editing"), applied between cycles
-/// with the local matrix update; with --verify-matrices each is checked against a rebuild.
-struct SceneEdits {
-  editing::EditSchedule schedule;
-  std::optional<editing::Editor> editor;
-  std::string source;
-  bool verify = false;
-  long applied = 0;
-  double maxDifference = 0.0;
-
-  SceneEdits(const LoadedModel& loaded, const Simulation& sim, bool verifyMatrices)
-      : source(loaded.source), verify(verifyMatrices) {
-    if (loaded.scene) schedule = editing::scheduleFromScene(loaded.scene->edits);
-    if (schedule.size()) editor.emplace(sim.model().mesh, sim.model().angles);
-  }
-
-  void beforeStep(Simulation& sim) {
-    if (schedule.finished()) return;
-    // A millionth of a period absorbs the rounding of the accumulated time.
-    for (const editing::TimedEdit& edit : schedule.due(sim.time(), 1e-6 * sim.period())) {
-      editing::EditResult result;
-      try {
-        result = editor->apply({sim.model().mesh, sim.model().angles, sim.mutableProperties()},
-                               sim.state(), edit.command);
-      } catch (const InvalidInputError& e) {
-        throw InvalidInputError(source + ": /edits/" + std::to_string(edit.source) + ": " +
-                                e.what());
-      }
-      if (!result.changed) continue;
-      ++applied;
-      sim.propertiesChanged(result.matrixRows);  // local, even for global edits
-      if (verify)
-        maxDifference = std::max(
-            maxDifference, editing::verifyAgainstRebuild(sim.model(), sim.stepper().system(),
-                                                         sim.stepper().transformation())
-                               .maxAbs());
-    }
-  }
-};
-
 int runSimulate(const SimulateOptions& options) {
   const LoadedModel loaded = options.model.load();
   const RunOptions::Resolved resolved = options.run.resolve(loaded);
@@ -73,7 +32,7 @@ int runSimulate(const SimulateOptions& options) {
   options.run.prepare(loaded, sim);
   for (const std::string& warning : sim.takeWarnings())
     std::cerr << "zsculpt: warning: " << loaded.source << ": " << warning << "\n";
-  SceneEdits edits(loaded, sim, options.verifyMatrices);
+  TimedEdits edits(loaded, sim, options.verifyMatrices);
   // Check the output folders before any work.
   for (const std::string* path : {&options.run.csv, &options.run.stateOut})
     if (!path->empty()) {

@@ -1,0 +1,314 @@
+#include "render_job.h"
+
+#include <unistd.h>
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <filesystem>
+#include <iostream>
+#include <memory>
+#include <sstream>
+
+#include "timed_edits.h"
+#include "zsculpt/app/view.h"
+#include "zsculpt/core/errors.h"
+#include "zsculpt/io/atomic_file.h"
+#include "zsculpt/io/state_io.h"
+#include "zsculpt/render/plot.h"
+#include "zsculpt/render/renderer.h"
+#include "zsculpt/subdivision/subdivision.h"
+
+namespace zsculpt::cli {
+
+namespace {
+
+constexpr long kDefaultFrames = 30;
+constexpr long kMaxFrames = 100000;
+
+/// The steps at which frames are taken: with --every K, 0, K, 2K ... up to the run's end
+/// (at most --frames of them); otherwise --frames (default 30) spread evenly over the run,
+/// the first at the rest state and the last at its end.
+std::vector<long> frameSteps(const RenderJobOptions& o, long& steps, bool explicitLength) {
+  if (o.frames && (*o.frames < 1 || *o.frames > kMaxFrames))
+    throw InvalidInputError("--frames: must be between 1 and " + std::to_string(kMaxFrames));
+  if (o.every && *o.every < 1) throw InvalidInputError("--every: must be at least 1");
+  std::vector<long> at;
+  if (o.every) {
+    const long k = *o.every;
+    // --frames N --every K with no run length: the run is just long enough for N frames.
+    if (o.frames && !explicitLength) steps = (*o.frames - 1) * k;
+    for (long s = 0; s <= steps; s += k) {
+      if (o.frames && static_cast<long>(at.size()) >= *o.frames) break;
+      at.push_back(s);
+      if (static_cast<long>(at.size()) > kMaxFrames)
+        throw InvalidInputError("--every: " + std::to_string(k) + " would write more than " +
+                                std::to_string(kMaxFrames) + " frames");
+    }
+    return at;
+  }
+  const long n = o.frames.value_or(kDefaultFrames);
+  if (n == 1) return {steps};
+  for (long f = 0; f < n; ++f) {
+    const long s = static_cast<long>(std::llround(static_cast<double>(f) * static_cast<double>(steps) /
+                                                  static_cast<double>(n - 1)));
+    if (at.empty() || s != at.back()) at.push_back(s);
+  }
+  return at;
+}
+
+/// "[#######.........]  42%  frame 12/30" on one terminal line, redrawn in place.
+class ProgressBar {
+ public:
+  explicit ProgressBar(bool enabled) : enabled_(enabled && ::isatty(STDERR_FILENO) == 1) {}
+  void update(double fraction, long frame, long frames) {
+    if (!enabled_) return;
+    const int percent = static_cast<int>(std::floor(100.0 * std::clamp(fraction, 0.0, 1.0)));
+    if (percent == last_) return;
+    last_ = percent;
+    constexpr int kWidth = 30;
+    const int filled = percent * kWidth / 100;
+    std::fprintf(stderr, "\r[%.*s%.*s] %3d%%  frame %ld/%ld", filled,
+                 "##############################", kWidth - filled,
+                 "..............................", percent, frame, frames);
+    std::fflush(stderr);
+  }
+  void finish() {
+    if (enabled_ && last_ >= 0) std::fputc('\n', stderr);
+    last_ = -1;
+  }
+
+ private:
+  bool enabled_;
+  int last_ = -1;
+};
+
+std::string unitSuffix(Property p) {
+  switch (p) {
+    case Property::Mass: return " (kg)";
+    case Property::Damping: return " (kg/s)";
+    case Property::Stiffness: return " (N/m)";
+    case Property::AngularStiffness: return " (N m/rad^2)";
+    case Property::RestLength: return " (m)";
+    case Property::RestAngle: return " (rad)";
+    case Property::Rigidity: return "";
+  }
+  return "";
+}
+
+}  // namespace
+
+RenderJobResult runRenderJob(const RenderJobOptions& o) {
+  namespace fs = std::filesystem;
+  RenderJobResult result;
+  // 1. Everything that can be refused, before any simulation work.
+  render::parseImageSize(o.size, result.width, result.height, "--size");
+  std::optional<Property> property;
+  if (!o.property.empty() && o.property != "none") property = propertyFromName(o.property);
+  if (o.levels && (*o.levels < 0 || *o.levels > 6))
+    throw InvalidInputError("--levels: must be between 0 and 6");
+  if (o.out.empty()) throw InvalidInputError("--out: an output folder is required");
+  io::ensureWritableDirectory(o.out);
+  for (const std::string* path : {&o.run.csv, &o.run.stateOut})
+    if (!path->empty()) {
+      const fs::path parent = fs::path(*path).parent_path();
+      io::ensureWritableDirectory(parent.empty() ? "." : parent.string());
+    }
+  render::OffscreenRenderer renderer;  // IOError when OSMesa cannot give a context
+  renderer.checkSize(result.width, result.height, "--size");
+
+  const LoadedModel loaded = o.model.load();
+  const RunOptions::Resolved resolved = o.run.resolve(loaded);
+  const bool explicitLength = o.run.steps || o.run.time ||
+                              (loaded.scene && (loaded.scene->simulation.steps || loaded.scene->simulation.time));
+  long steps = resolved.steps;
+  const std::vector<long> frameAt = frameSteps(o, steps, explicitLength);
+  steps = std::max(steps, frameAt.back());
+  result.steps = steps;
+  result.period = resolved.settings.period;
+  result.tMax = resolved.tMax;
+
+  const Mesh& mesh = loaded.model.mesh;
+  result.levels = o.levels.value_or(app::affordableLevels(mesh, 2));
+  std::unique_ptr<SubdivisionStencil> stencil;
+  if (result.levels > 0) {
+    SubdivisionOptions subdivision;
+    subdivision.levels = result.levels;
+    stencil = std::make_unique<SubdivisionStencil>(mesh, subdivision);
+  }
+
+  Simulation sim(loaded.model, resolved.settings);
+  o.run.prepare(loaded, sim);
+  for (const std::string& warning : sim.takeWarnings())
+    std::cerr << "zsculpt: warning: " << loaded.source << ": " << warning << "\n";
+  TimedEdits edits(loaded, sim, false);
+
+  // 2. The frame: the camera is framed once on the start (with its arrows) and then follows
+  // the centre of mass at that distance and orientation, so that a model set flying by its
+  // loads stays in view, deformation shows as deformation, and a still model gives identical
+  // frames.
+  render::Frame frame;
+  frame.mesh = &sim.model().mesh;
+  frame.stencil = stencil.get();
+  frame.positions = &sim.state().position;
+  VectorX scalar;
+  const VectorX& mass = sim.model().properties.mass;
+  auto centreOfMass = [&]() -> Vec3 {
+    return (sim.state().position.transpose() * mass) / mass.sum();
+  };
+  Vec3 targetOffset = Vec3::Zero();
+  auto fillFrame = [&]() {
+    frame.forces.clear();
+    for (const TimedLoad& f : sim.forces())
+      if (f.activeAt(sim.time())) frame.forces.push_back({f.vertex, f.value});
+    frame.torques.clear();
+    for (const TimedLoad& t : sim.torques())
+      if (t.activeAt(sim.time())) frame.torques.push_back({t.vertex, t.value});
+    frame.pins.clear();
+    frame.normalPins.clear();
+    for (const Constraint& c : sim.constraints().constraints()) {
+      if (c.kind == ConstraintKind::Position)
+        frame.pins.push_back(c.vertex);
+      else
+        frame.normalPins.push_back({c.vertex, c.value});
+    }
+    if (property) {
+      render::propertyAsVertexScalar(sim.model().mesh, sim.model().angles, sim.model().properties,
+                                     *property, scalar);
+      frame.scalar.values = &scalar;
+      frame.scalar.name = std::string(propertyName(*property)) + unitSuffix(*property);
+    }
+    frame.display.legend = property.has_value();
+    frame.camera.target = centreOfMass() + targetOffset;
+    char caption[64];
+    std::snprintf(caption, sizeof caption, "t = %.2f s", sim.time());
+    frame.caption = caption;
+  };
+  fillFrame();
+  if (loaded.scene) app::applyCameraSettings(loaded.scene->camera, frame.camera);
+  render::frameScene(frame, static_cast<double>(result.width) / result.height, 1.25);
+  if (loaded.scene) {
+    // A scene's explicit target and distance win over the automatic framing.
+    const io::CameraSettings& c = loaded.scene->camera;
+    if (c.target) frame.camera.target = *c.target;
+    if (c.distance) frame.camera.distance = *c.distance;
+  }
+  targetOffset = frame.camera.target - centreOfMass();
+
+  // 3. Simulate, render and record.
+  render::EnergyMomentumSeries series;
+  std::ostringstream csv;
+  csv.precision(17);
+  csv << "step,time,kinetic,potential,total,px,py,pz,lx,ly,lz\n";
+  for (auto* column : {&series.time, &series.kinetic, &series.potential, &series.total, &series.px,
+                       &series.py, &series.pz, &series.lx, &series.ly, &series.lz})
+    column->reserve(static_cast<size_t>(steps) + 1);
+  auto record = [&](long step) {
+    const Diagnostics d = sim.diagnostics();
+    csv << step << ',' << sim.time() << ',' << d.kinetic << ',' << d.potential.total() << ','
+        << d.total() << ',' << d.momentum.x() << ',' << d.momentum.y() << ',' << d.momentum.z()
+        << ',' << d.angularMomentum.x() << ',' << d.angularMomentum.y() << ','
+        << d.angularMomentum.z() << '\n';
+    series.time.push_back(sim.time());
+    series.kinetic.push_back(d.kinetic);
+    series.potential.push_back(d.potential.total());
+    series.total.push_back(d.total());
+    series.px.push_back(d.momentum.x());
+    series.py.push_back(d.momentum.y());
+    series.pz.push_back(d.momentum.z());
+    series.lx.push_back(d.angularMomentum.x());
+    series.ly.push_back(d.angularMomentum.y());
+    series.lz.push_back(d.angularMomentum.z());
+  };
+  const int digits = std::max(4, static_cast<int>(std::to_string(frameAt.size() - 1).size()));
+  auto writeFrame = [&]() {
+    char name[32];
+    std::snprintf(name, sizeof name, "frame_%0*zu.png", digits, result.frames.size());
+    const std::string path = (fs::path(o.out) / name).string();
+    fillFrame();
+    renderer.renderPng(frame, result.width, result.height, path);
+    result.frames.push_back(path);
+  };
+
+  ProgressBar progress(o.progress);
+  const auto wallStart = std::chrono::steady_clock::now();
+  size_t next = 0;
+  record(0);
+  if (frameAt[next] == 0) {
+    writeFrame();
+    ++next;
+  }
+  for (long k = 1; k <= steps; ++k) {
+    try {
+      edits.beforeStep(sim);
+      sim.step();
+    } catch (const DivergenceError&) {
+      result.diverged = true;
+      result.divergedAt = k;
+      break;
+    }
+    record(k);
+    if (next < frameAt.size() && frameAt[next] == k) {
+      writeFrame();
+      ++next;
+    }
+    progress.update(static_cast<double>(k) / static_cast<double>(steps),
+                    static_cast<long>(result.frames.size()), static_cast<long>(frameAt.size()));
+  }
+  progress.finish();
+
+  result.diagnostics = o.run.csv.empty() ? (fs::path(o.out) / "diagnostics.csv").string() : o.run.csv;
+  io::writeFileAtomically(result.diagnostics, [&](std::ostream& out) { out << csv.str(); });
+  result.plot = (fs::path(o.out) / "energy_momentum.png").string();
+  render::PlotOptions plotOptions;
+  plotOptions.title = fs::path(loaded.source).filename().string() + ": energy and momentum";
+  render::savePlot(result.plot, render::energyMomentumPanels(series), plotOptions);
+  if (!o.run.stateOut.empty()) {
+    io::saveState(sim.state(), o.run.stateOut);
+    result.stateOut = o.run.stateOut;
+  }
+  result.wallSeconds =
+      std::chrono::duration<double>(std::chrono::steady_clock::now() - wallStart).count();
+  return result;
+}
+
+int reportRenderJob(const RenderJobOptions& o, const RenderJobResult& r, const std::string& source) {
+  if (o.run.json) {
+    std::cout << "{\n  \"frames\": [";
+    for (size_t i = 0; i < r.frames.size(); ++i)
+      std::cout << (i ? ", " : "") << '"' << r.frames[i] << '"';
+    std::cout << "],\n"
+              << "  \"diagnostics\": \"" << r.diagnostics << "\",\n"
+              << "  \"plot\": \"" << r.plot << "\",\n"
+              << "  \"width\": " << r.width << ",\n"
+              << "  \"height\": " << r.height << ",\n"
+              << "  \"levels\": " << r.levels << ",\n"
+              << "  \"steps\": " << r.steps << ",\n"
+              << "  \"dt\": " << jsonNumber(r.period) << ",\n"
+              << "  \"t_max\": " << jsonNumber(r.tMax) << ",\n"
+              << "  \"diverged\": " << (r.diverged ? "true" : "false") << ",\n"
+              << "  \"diverged_at_step\": " << (r.diverged ? std::to_string(r.divergedAt) : "null") << ",\n"
+              << "  \"wall_seconds\": " << jsonNumber(r.wallSeconds) << "\n"
+              << "}\n";
+  } else {
+    std::cout << "frames (" << r.frames.size() << ", " << r.width << "x" << r.height << "):";
+    if (!r.frames.empty()) {
+      std::cout << " " << r.frames.front();
+      if (r.frames.size() > 1) std::cout << " ... " << r.frames.back();
+    }
+    std::cout << "\ndiagnostics: " << r.diagnostics << "\nplot: " << r.plot << "\n";
+    if (!r.stateOut.empty()) std::cout << "state: " << r.stateOut << "\n";
+    std::cout << r.steps << " steps of " << r.period << " s (" << r.period / r.tMax
+              << " T_max) in " << r.wallSeconds << " s\n";
+  }
+  if (r.diverged) {
+    std::cerr << "zsculpt: error: " << source << ": the simulation diverged at step " << r.divergedAt
+              << "; the frames and diagnostics up to it were written"
+              << (r.stateOut.empty() ? "" : ", and the last finite state") << "\n";
+    return 3;
+  }
+  return 0;
+}
+
+}  // namespace zsculpt::cli

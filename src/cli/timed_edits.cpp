@@ -1,0 +1,37 @@
+#include "timed_edits.h"
+
+#include <algorithm>
+
+#include "zsculpt/core/errors.h"
+
+namespace zsculpt::cli {
+
+TimedEdits::TimedEdits(const LoadedModel& loaded, const Simulation& sim, bool verifyMatrices)
+    : source(loaded.source), verify(verifyMatrices) {
+  if (loaded.scene) schedule = editing::scheduleFromScene(loaded.scene->edits);
+  if (schedule.size()) editor.emplace(sim.model().mesh, sim.model().angles);
+}
+
+void TimedEdits::beforeStep(Simulation& sim) {
+  if (schedule.finished()) return;
+  // A millionth of a period absorbs the rounding of the accumulated time.
+  for (const editing::TimedEdit& edit : schedule.due(sim.time(), 1e-6 * sim.period())) {
+    editing::EditResult result;
+    try {
+      result = editor->apply({sim.model().mesh, sim.model().angles, sim.mutableProperties()},
+                             sim.state(), edit.command);
+    } catch (const InvalidInputError& e) {
+      throw InvalidInputError(source + ": /edits/" + std::to_string(edit.source) + ": " + e.what());
+    }
+    if (!result.changed) continue;
+    ++applied;
+    sim.propertiesChanged(result.matrixRows);  // local, even for global edits
+    if (verify)
+      maxDifference = std::max(
+          maxDifference, editing::verifyAgainstRebuild(sim.model(), sim.stepper().system(),
+                                                       sim.stepper().transformation())
+                             .maxAbs());
+  }
+}
+
+}  // namespace zsculpt::cli
