@@ -249,6 +249,36 @@ TEST(Session, PaintingStiffnessChangesTheProperty) {
   EXPECT_DOUBLE_EQ(session.model().properties.stiffness[27], 5.0);
 }
 
+TEST(Session, PaintingStifferKeepsThePeriodAtItsFractionOfTMaxAndTheRunFinite) {
+  // A modeller paints stiffness 40x over a running grid. The period must follow T_max down
+  // (equation 5 for the new stiffness), or the next cycles blow up.
+  SessionSetup setup = gridSetup(8, 0.9);
+  setup.scene.simulation.perturb = 0.05;
+  Session session(std::move(setup));
+  session.apply(Play{});
+  for (int k = 0; k < 20; ++k) ASSERT_EQ(session.advance(), Session::Outcome::Stepped);
+  const double before = session.simulation().period();
+  editing::Brush brush;
+  brush.property = Property::Stiffness;
+  brush.value = 200.0;
+  brush.radius = 2.5;
+  session.apply(Edit{editing::Dab{brush, editing::BrushCentre::atVertex(27)}});
+  EXPECT_NEAR(session.simulation().period() / session.tMax(), 0.9, 1e-12);
+  EXPECT_LT(session.simulation().period(), before / 5.0);
+  std::vector<std::string> notices;
+  session.takeNotices(notices);
+  ASSERT_EQ(notices.size(), 1u);
+  EXPECT_NE(notices[0].find("time step"), std::string::npos) << notices[0];
+  for (int k = 0; k < 3000; ++k) ASSERT_EQ(session.advance(), Session::Outcome::Stepped) << k;
+  EXPECT_TRUE(session.state().position.allFinite());
+  // Softer again (undo): the period stays where it is, stable.
+  session.apply(Edit{editing::Undo{}});
+  EXPECT_LT(session.simulation().period(), before / 5.0);
+  notices.clear();
+  session.takeNotices(notices);
+  EXPECT_TRUE(notices.empty());
+}
+
 TEST(Session, DivergenceRollsBackPausesAndSaysSo) {
   // Three times the stable period of the default scheme: the state blows up.
   SessionSetup setup = gridSetup(6, 3.0);

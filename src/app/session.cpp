@@ -147,6 +147,7 @@ Session::Session(SessionSetup setup)
                std::max({box.diagonal(), box.min.cwiseAbs().maxCoeff(), box.max.cwiseAbs().maxCoeff(), 1.0});
   region_ = editing::BrushRegion(mesh);
   refreshLimits();
+  if (std::isfinite(tMax_) && tMax_ > 0.0) periodFraction_ = sim_->period() / tMax_;
 }
 
 Session::~Session() = default;
@@ -187,6 +188,19 @@ void Session::refreshLimits() {
   stableLimit_ = maxDiagonal > 0.0 ? stablePeriodLimit(sim_->stepper().scheme(), 2.0 * maxDiagonal)
                                    : std::numeric_limits<double>::infinity();
   scalarStale_ = true;
+}
+
+void Session::keepPeriodFraction() {
+  const double wanted = periodFraction_ * tMax_;
+  if (!std::isfinite(wanted) || !(wanted > 0.0) || !(sim_->period() > wanted * (1.0 + 1e-9))) return;
+  const double before = sim_->period();
+  rebuildSimulation(sim_->stepper().scheme(), wanted);
+  refreshLimits();
+  std::ostringstream msg;
+  msg.precision(4);
+  msg << "the edit lowered T_max to " << tMax_ << " s: time step " << before << " s -> "
+      << wanted << " s (" << periodFraction_ << " T_max)";
+  notices_.push_back(msg.str());
 }
 
 void Session::rebuildSimulation(Scheme scheme, double period) {
@@ -256,6 +270,7 @@ void Session::apply(const Command& command) {
             if (s.scheme == sim_->stepper().scheme() && s.period == sim_->period()) return;
             rebuildSimulation(s.scheme, s.period);
             refreshLimits();
+            if (std::isfinite(tMax_) && tMax_ > 0.0) periodFraction_ = s.period / tMax_;
             unsaved_ = true;
           },
           [&](const SetGravity& g) {
@@ -270,6 +285,7 @@ void Session::apply(const Command& command) {
             sim_->mutableProperties().stiffnessCap = c.cap;
             sim_->allPropertiesChanged();
             refreshLimits();
+            keepPeriodFraction();
             unsaved_ = true;
           },
           [&](const Edit& e) {
@@ -288,6 +304,7 @@ void Session::apply(const Command& command) {
             else
               sim_->propertiesChanged(result.matrixRows);
             refreshLimits();
+            keepPeriodFraction();
             unsaved_ = true;
           },
           [&](const AddLoad& l) {

@@ -157,6 +157,10 @@ class Session {
   void rebuildSimulation(Scheme scheme, double period);
   void reloadLoads();
   void refreshLimits();
+  /// After an edit that lowered T_max: bring the period back to the chosen fraction of it
+  /// (a rebuild of the stepper, with a notice), so painting stiffness never makes the
+  /// running model diverge. A softer model keeps its period.
+  void keepPeriodFraction();
   void addSceneConstraints();
   void endDrag();
   void takeCheckpoint();
@@ -198,6 +202,8 @@ class Session {
   bool unsaved_ = false;
   double tMax_ = 0.0;
   double stableLimit_ = 0.0;
+  /// The period as a fraction of T_max that the user chose (start, or SetTimeStep).
+  double periodFraction_ = 0.5;
 
   // Display scalar cache.
   bool scalarStale_ = true;
