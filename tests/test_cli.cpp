@@ -318,3 +318,116 @@ TEST_F(Cli, DemoWritesTheDefaultSceneToFramesAndPlotsAndPrintsThePaths) {
   const auto last = zsculpt::render::readPng(path("demo/frame_0003.png"));
   EXPECT_GT(zsculpt::render::meanAbsoluteDifference(first, last), 5.0 / 255.0);
 }
+
+namespace {
+
+/// Pixels that read as the figures' red (pins, control points, markers) or blue (normal
+/// pins, Figure 8's rest-angle point), lit or not.
+long countHue(const zsculpt::render::Image& image, bool red) {
+  long n = 0;
+  for (int y = 0; y < image.height; ++y)
+    for (int x = 0; x < image.width; ++x) {
+      const std::uint8_t* p = image.pixel(x, y);
+      const int r = p[0], g = p[1], b = p[2];
+      n += red ? (r > 140 && g < 90 && b < 90 && r > 2 * g) : (b > 140 && r < 90 && g < 150 && b > 2 * r);
+    }
+  return n;
+}
+
+/// Panel `k` of a figure's row of 640 x 480 panels, 6 pixels apart.
+zsculpt::render::Image panel(const zsculpt::render::Image& row, int k) {
+  zsculpt::render::Image out(640, 480);
+  for (int y = 0; y < 480; ++y)
+    std::copy_n(row.pixel(k * (640 + 6), y), 640 * 4, out.pixel(0, y));
+  return out;
+}
+
+struct FigureImage {
+  const char* name;
+  int panels;
+  std::vector<int> redIn, blueIn;  // panels with red or blue glyphs
+};
+
+class CliFigureImage : public Cli {
+ protected:
+  /// Runs `reproduce NAME --quick` and checks NAME.png: its size, the model in every panel
+  /// (a plausible share of it, not all), the red and blue glyphs where the figure has them,
+  /// and the path printed with the other outputs. Returns the panels.
+  std::vector<zsculpt::render::Image> check(const FigureImage& f) {
+    const Result r = run(std::string("reproduce ") + f.name + " --quick --out " + path("fig"));
+    EXPECT_EQ(r.status, 0) << r.err;
+    const std::string png = path("fig/" + std::string(f.name) + ".png");
+    EXPECT_NE(r.out.find(png), std::string::npos) << r.out;
+    if (!fs::exists(png)) {
+      ADD_FAILURE() << png << " missing";
+      return {};
+    }
+    const auto image = zsculpt::render::readPng(png);
+    EXPECT_EQ(image.width, f.panels * 640 + (f.panels - 1) * 6);
+    EXPECT_EQ(image.height, 480);
+    std::vector<zsculpt::render::Image> panels;
+    if (image.width != f.panels * 640 + (f.panels - 1) * 6 || image.height != 480) return panels;
+    for (int k = 0; k < f.panels; ++k) {
+      panels.push_back(panel(image, k));
+      const double share = coverage(panels.back());
+      EXPECT_GT(share, 0.05) << f.name << " panel " << k;
+      EXPECT_LT(share, 0.8) << f.name << " panel " << k;
+      const bool red = std::find(f.redIn.begin(), f.redIn.end(), k) != f.redIn.end();
+      const bool blue = std::find(f.blueIn.begin(), f.blueIn.end(), k) != f.blueIn.end();
+      if (red) {
+        EXPECT_GT(countHue(panels.back(), true), 40) << f.name << " panel " << k;
+      }
+      if (blue) {
+        EXPECT_GT(countHue(panels.back(), false), 40) << f.name << " panel " << k;
+      } else {
+        EXPECT_LT(countHue(panels.back(), false), 5) << f.name << " panel " << k;
+      }
+    }
+    return panels;
+  }
+};
+
+}  // namespace
+
+TEST_F(CliFigureImage, Figure5ShowsTheMeshAndTheInterpolatingSurface) {
+  const auto p = check({"figure5", 2, {0, 1}, {}});
+  ASSERT_EQ(p.size(), 2u);
+  // Flat faces against the smooth surface.
+  EXPECT_GT(zsculpt::render::meanAbsoluteDifference(p[0], p[1]), 1.0 / 255.0);
+}
+
+TEST_F(CliFigureImage, Figure6ShowsTheLoadedAndTheRecoilingModel) {
+  const auto p = check({"figure6", 3, {0, 1, 2}, {}});
+  ASSERT_EQ(p.size(), 3u);
+  EXPECT_GT(zsculpt::render::meanAbsoluteDifference(p[0], p[1]), 1.0 / 255.0);
+  EXPECT_GT(zsculpt::render::meanAbsoluteDifference(p[1], p[2]), 1.0 / 255.0);
+}
+
+TEST_F(CliFigureImage, Figure8ShowsTheEditedTorusBeforeAfterAndFromTheSide) {
+  const auto p = check({"figure8", 3, {0, 1, 2}, {0, 1, 2}});
+  ASSERT_EQ(p.size(), 3u);
+  EXPECT_GT(zsculpt::render::meanAbsoluteDifference(p[0], p[1]), 0.5 / 255.0);
+}
+
+TEST_F(CliFigureImage, Figure9ShowsBothConstraintCases) {
+  // Blue normal pins only in case II.
+  const auto p = check({"figure9", 2, {0, 1}, {1}});
+  ASSERT_EQ(p.size(), 2u);
+}
+
+TEST_F(CliFigureImage, Figure10ShowsRestAndBothTorques) {
+  // Red pins everywhere; the diverging legend puts blue in every panel.
+  const auto p = check({"figure10", 3, {0, 1, 2}, {0, 1, 2}});
+  ASSERT_EQ(p.size(), 3u);
+  EXPECT_GT(zsculpt::render::meanAbsoluteDifference(p[0], p[1]), 1.0 / 255.0);
+  EXPECT_GT(zsculpt::render::meanAbsoluteDifference(p[1], p[2]), 1.0 / 255.0);
+  // Left of the legend, the mesh is coloured by its turn: red anticlockwise, blue clockwise.
+  auto redness = [](const zsculpt::render::Image& image) {
+    double sum = 0.0;
+    for (int y = 0; y < image.height; ++y)
+      for (int x = 0; x < image.width / 2; ++x) sum += image.pixel(x, y)[0] - image.pixel(x, y)[2];
+    return sum / (image.height * (image.width / 2));
+  };
+  EXPECT_GT(redness(p[1]), redness(p[0]) + 10.0);
+  EXPECT_LT(redness(p[2]), redness(p[0]) - 10.0);
+}

@@ -8,19 +8,28 @@
 // followed for 3 s more (default scheme, T = 0.1 T_max). The model is free, so the force
 // also accelerates it as a whole (F / M = 0.115 m/s^2); shapes are reported about the
 // centre of mass. Written: figure6_positions.csv (every vertex at every step),
-// figure6_energy.csv, figure6.json (the summary printed below). Images come with rendering.
+// figure6_energy.csv, figure6.json (the summary printed below) and figure6.png: three
+// instants side by side (the rest shape as the load starts, the stretched shape at release
+// 3 s later, the recoiling shape at the end), the loaded vertex as a red point and the
+// force as an orange arrow while it acts. The camera follows the centre of mass at one
+// distance and orientation, so that the panels compare shapes, not the drift.
 
+#include <algorithm>
 #include <cmath>
+#include <cstdio>
 #include <iomanip>
 #include <iostream>
 #include <nlohmann/json.hpp>
+#include <numbers>
 #include <sstream>
 
 #include "reproduce.h"
 #include "zsculpt/io/atomic_file.h"
 #include "zsculpt/mesh/builtin.h"
 #include "zsculpt/physics/matrices.h"
+#include "zsculpt/render/renderer.h"
 #include "zsculpt/simulation/simulation.h"
+#include "zsculpt/subdivision/subdivision.h"
 
 namespace zsculpt::cli {
 
@@ -47,6 +56,8 @@ double maxStrain(const Model& model, const Points& p) {
 
 int reproduceFigure6(const ReproduceOptions& options) {
   io::ensureWritableDirectory(options.out);
+  render::OffscreenRenderer renderer;  // IOError when OSMesa cannot give a context
+  renderer.checkSize(kPanelWidth, kPanelHeight);
   UniformProperties values;
   values.mass = 0.5;
   values.stiffness = 5.0;
@@ -89,6 +100,8 @@ int reproduceFigure6(const ReproduceOptions& options) {
   double peakRadius = restRadius, peakStrain = 0.0, releasedRadius = 0.0, releasedStrain = 0.0;
   double minAfter = INFINITY, maxAfter = 0.0;
   Diagnostics atRelease;
+  Points atReleasePosition = rest;
+  double atReleaseTime = 0.0;
   while (sim.time() < end - 0.5 * settings.period) {
     const bool wasOn = sim.time() < release;
     sim.step();
@@ -103,6 +116,8 @@ int reproduceFigure6(const ReproduceOptions& options) {
       releasedRadius = r;
       releasedStrain = maxStrain(sim.model(), sim.state().position);
       atRelease = sim.diagnostics();
+      atReleasePosition = sim.state().position;
+      atReleaseTime = sim.time();
     }
     if (!wasOn) {
       minAfter = std::min(minAfter, r);
@@ -142,6 +157,48 @@ int reproduceFigure6(const ReproduceOptions& options) {
   io::writeFileAtomically(energyPath, [&](std::ostream& out) { out << energy.str(); });
   io::writeFileAtomically(jsonPath, [&](std::ostream& out) { out << json.dump(2) << '\n'; });
 
+  // The image: the three instants, the camera framed on the stretched shape with its arrow.
+  const SubdivisionStencil stencil(sim.model().mesh, SubdivisionOptions{});
+  render::Frame frame;
+  frame.mesh = &sim.model().mesh;
+  frame.stencil = &stencil;
+  frame.markers.push_back({loaded, render::Color::hex(0xd62728)});
+  frame.positions = &atReleasePosition;
+  frame.forces.push_back({loaded, force * direction});
+  // From beside the force, a little in front of the loaded vertex and above it: the arrow
+  // lies nearly in the picture and the red point faces the camera.
+  const Vec3 side = direction.cross(Vec3::UnitZ()).norm() > 1e-6
+                        ? direction.cross(Vec3::UnitZ()).normalized()
+                        : Vec3::UnitX();
+  const Vec3 eye = (side + 0.7 * direction + 0.3 * Vec3::UnitZ()).normalized();
+  frame.camera.yawDegrees = std::atan2(eye.y(), eye.x()) * 180.0 / std::numbers::pi;
+  frame.camera.pitchDegrees = std::clamp(std::asin(eye.z()) * 180.0 / std::numbers::pi, -80.0, 80.0);
+  render::frameScene(frame, static_cast<double>(kPanelWidth) / kPanelHeight, 1.3);
+  const Vec3 offset = frame.camera.target - centreOfMass(mass, atReleasePosition);
+  const Points& endPosition = sim.state().position;
+  struct Instant {
+    const Points* position;
+    bool loadOn;
+    std::string caption;
+  };
+  char text[3][96];
+  std::snprintf(text[0], sizeof text[0], "t = 0 s: %.3f N applied at the red point", force);
+  std::snprintf(text[1], sizeof text[1], "t = %.2f s: under load, released", atReleaseTime);
+  std::snprintf(text[2], sizeof text[2], "t = %.2f s: recoiling, %.2f s after release", sim.time(),
+                sim.time() - atReleaseTime);
+  std::vector<render::Image> panels;
+  for (const Instant& instant : {Instant{&rest, true, text[0]}, Instant{&atReleasePosition, true, text[1]},
+                                 Instant{&endPosition, false, text[2]}}) {
+    frame.positions = instant.position;
+    frame.forces.clear();
+    if (instant.loadOn) frame.forces.push_back({loaded, force * direction});
+    frame.camera.target = centreOfMass(mass, *instant.position) + offset;
+    frame.caption = instant.caption;
+    panels.push_back(renderPanel(renderer, frame));
+  }
+  const std::string pngPath = options.out + "/figure6.png";
+  savePanels(pngPath, panels);
+
   std::cout << std::setprecision(4) << "figure 6: dodecahedron (mu 0.5, kappa 5), " << force
             << " N outwards at vertex " << loaded << " for " << release << " s, then released\n"
             << "  loaded vertex from the centre of mass: rest " << restRadius << ", under load up to "
@@ -152,7 +209,8 @@ int reproduceFigure6(const ReproduceOptions& options) {
             << atRelease.total() << " J at release, " << last.total() << " J at the end (no damping)\n"
             << "  momentum " << last.momentum.norm() << " kg m/s = the load's impulse "
             << force * release << " N s\n"
-            << "wrote " << positionsPath << ", " << energyPath << ", " << jsonPath << "\n";
+            << "wrote " << positionsPath << ", " << energyPath << ", " << jsonPath << ", " << pngPath
+            << "\n";
   return 0;
 }
 

@@ -9,11 +9,15 @@
 //   blue: rest angles x 0.8 at vertex 1, next to the red points.
 // The model is then simulated (default scheme, 0.5 T_max) until it is at rest. Written:
 // figure8_energy.csv (energy over time), figure8_shape.csv (rest and final positions per
-// vertex with its role), figure8.json (the summary printed below). Images come with
-// rendering.
+// vertex with its role), figure8.json (the summary printed below) and figure8.png: three
+// panels, the torus before (rest shape, just edited) and after it came to rest, seen from
+// the same oblique camera, then the after shape from the side (as the paper's third image);
+// the edited rest lengths' vertices are red points, the edited rest angle's vertex blue,
+// on the level-2 surface.
 
 #include <algorithm>
 #include <cmath>
+#include <cstdio>
 #include <iomanip>
 #include <iostream>
 #include <sstream>
@@ -25,7 +29,9 @@
 #include "zsculpt/mesh/builtin.h"
 #include "zsculpt/physics/diagnostics.h"
 #include "zsculpt/physics/forces.h"
+#include "zsculpt/render/renderer.h"
 #include "zsculpt/simulation/simulation.h"
+#include "zsculpt/subdivision/subdivision.h"
 
 namespace zsculpt::cli {
 
@@ -48,6 +54,8 @@ std::string number(double x) {
 
 int reproduceFigure8(const ReproduceOptions& options) {
   io::ensureWritableDirectory(options.out);
+  render::OffscreenRenderer renderer;  // IOError when OSMesa cannot give a context
+  renderer.checkSize(kPanelWidth, kPanelHeight);
   UniformProperties values;
   values.mass = 0.1;  // Table 1, Torus-I
   values.stiffness = 5.0;
@@ -199,6 +207,35 @@ int reproduceFigure8(const ReproduceOptions& options) {
   io::writeFileAtomically(shapePath, [&](std::ostream& out) { out << shape.str(); });
   io::writeFileAtomically(jsonPath, [&](std::ostream& out) { out << json.str(); });
 
+  // The image: before and after from one camera, then after from the side.
+  const SubdivisionStencil stencil(m.mesh, SubdivisionOptions{});
+  render::Frame frame;
+  frame.mesh = &m.mesh;
+  frame.stencil = &stencil;
+  for (Index v : redPoints) frame.markers.push_back({v, render::Color::hex(0xd62728)});
+  frame.markers.push_back({1, render::Color::hex(0x1f5fd6)});
+  frame.positions = &final;
+  frame.camera.yawDegrees = 5.0;  // facing the red (azimuth 0) and blue (36 deg) points
+  frame.camera.pitchDegrees = 35.0;
+  const double aspect = static_cast<double>(kPanelWidth) / kPanelHeight;
+  render::frameScene(frame, aspect, 1.15);
+  std::vector<render::Image> panels;
+  frame.positions = &rest;
+  frame.caption = "before: rest lengths x1.5 (red), rest angle x0.8 (blue)";
+  panels.push_back(renderPanel(renderer, frame));
+  frame.positions = &final;
+  char caption[96];
+  std::snprintf(caption, sizeof caption, "after: at rest, t = %.1f s", sim.time());
+  frame.caption = caption;
+  panels.push_back(renderPanel(renderer, frame));
+  frame.camera.yawDegrees = -25.0;
+  frame.camera.pitchDegrees = 0.0;
+  render::frameScene(frame, aspect, 1.15);
+  frame.caption = "after, from the side";
+  panels.push_back(renderPanel(renderer, frame));
+  const std::string pngPath = options.out + "/figure8.png";
+  savePanels(pngPath, panels);
+
   std::cout << std::setprecision(4) << "figure 8: Torus-I, rest lengths x1.5 at the red points {";
   for (size_t k = 0; k < redPoints.size(); ++k) std::cout << (k ? ", " : "") << redPoints[k];
   std::cout << "} (" << redEdges << " edges), rest angles x0.8 at the blue point 1 (" << blueAngles
@@ -219,7 +256,8 @@ int reproduceFigure8(const ReproduceOptions& options) {
             << "\n"
             << "  displacement: red " << redDisplacement << ", blue " << blueDisplacement
             << ", far side " << farDisplacement << " m\n"
-            << "wrote " << energyPath << ", " << shapePath << ", " << jsonPath << "\n";
+            << "wrote " << energyPath << ", " << shapePath << ", " << jsonPath << ", " << pngPath
+            << "\n";
   return 0;
 }
 

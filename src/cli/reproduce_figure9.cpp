@@ -7,7 +7,11 @@
 // only): the normals at those five vertices held at their rest normals. The same 1.153 N
 // force pushes the vertex farthest from face 0 sideways in both cases; each case runs until
 // it is at rest (default scheme, T = 0.5 T_max). Written: figure9.csv (final positions and
-// best-plane normals of every vertex in both cases), figure9.json (summary).
+// best-plane normals of every vertex in both cases), figure9.json (summary) and figure9.png:
+// the final shapes of case I and case II side by side from one camera (looking across the
+// axis from face 0 to the loaded vertex, so the force lies in the picture), the position
+// constraints as red cubes, the normal constraints as blue cubes with arrows along the held
+// normals, the force as an orange arrow.
 
 #include <algorithm>
 #include <cmath>
@@ -22,7 +26,9 @@
 #include "zsculpt/io/atomic_file.h"
 #include "zsculpt/mesh/builtin.h"
 #include "zsculpt/physics/matrices.h"
+#include "zsculpt/render/renderer.h"
 #include "zsculpt/simulation/simulation.h"
+#include "zsculpt/subdivision/subdivision.h"
 
 namespace zsculpt::cli {
 
@@ -45,6 +51,8 @@ struct CaseResult {
 
 int reproduceFigure9(const ReproduceOptions& options) {
   io::ensureWritableDirectory(options.out);
+  render::OffscreenRenderer renderer;  // IOError when OSMesa cannot give a context
+  renderer.checkSize(kPanelWidth, kPanelHeight);
   UniformProperties values;
   values.mass = 0.5;
   values.stiffness = 5.0;
@@ -168,7 +176,37 @@ int reproduceFigure9(const ReproduceOptions& options) {
   io::writeFileAtomically(csvPath, [&](std::ostream& out) { out << csv.str(); });
   io::writeFileAtomically(jsonPath, [&](std::ostream& out) { out << json.dump(2) << '\n'; });
 
+  // The image: both final shapes from one camera, framed on case I with its glyphs.
   const double degrees = 180.0 / std::numbers::pi;
+  const SubdivisionStencil stencil(mesh, SubdivisionOptions{});
+  render::Frame frame;
+  frame.mesh = &mesh;
+  frame.stencil = &stencil;
+  frame.forces.push_back({loaded, force * direction});
+  frame.pins = red;
+  const Vec3 across = (axis.cross(direction) - 0.3 * axis).normalized();
+  frame.camera.yawDegrees = std::atan2(across.y(), across.x()) * degrees;
+  frame.camera.pitchDegrees = std::clamp(std::asin(across.z()) * degrees, -80.0, 80.0);
+  frame.positions = &one.position;
+  const double aspect = static_cast<double>(kPanelWidth) / kPanelHeight;
+  render::frameScene(frame, aspect, 1.3);
+  const render::Camera camera = frame.camera;
+  frame.positions = &two.position;
+  for (Index v : red) frame.normalPins.push_back({v, restNormals[static_cast<size_t>(v)]});
+  render::frameScene(frame, aspect, 1.3);
+  frame.camera.distance = std::max(frame.camera.distance, camera.distance);
+  frame.camera.target = 0.5 * (frame.camera.target + camera.target);
+  std::vector<render::Image> panels;
+  frame.caption = "II: position (red) and normal (blue) constraints";
+  const render::Image caseTwo = renderPanel(renderer, frame);
+  frame.positions = &one.position;
+  frame.normalPins.clear();
+  frame.caption = "I: position (red) constraints";
+  panels.push_back(renderPanel(renderer, frame));
+  panels.push_back(caseTwo);
+  const std::string pngPath = options.out + "/figure9.png";
+  savePanels(pngPath, panels);
+
   std::cout << std::setprecision(4) << "figure 9: dodecahedron, face 0 pinned (red), " << force
             << " N sideways at vertex " << loaded << "\n"
             << "  I  (position):          normals at the red vertices turn up to "
@@ -178,7 +216,7 @@ int reproduceFigure9(const ReproduceOptions& options) {
             << "  the normals of the two cases differ by up to " << between * degrees
             << " deg; the loaded vertex moved " << loadedMoveOne << " (I) and " << loadedMoveTwo
             << " (II)\n"
-            << "wrote " << csvPath << ", " << jsonPath << "\n";
+            << "wrote " << csvPath << ", " << jsonPath << ", " << pngPath << "\n";
   return 0;
 }
 
