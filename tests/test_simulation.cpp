@@ -193,14 +193,16 @@ TEST(SemiRigid, AllChiZeroIsTheElasticStepperBitForBit) {
   State start = State::atRest(model.mesh);
   randomVelocity(model.properties.mass, 0.05, 7, start.velocity);
   sim.setState(start);
-  sim.addForce(TimedLoad{3, Vec3(0.3, -0.2, 1.153), 0.0, 2.0});
+  const TimedLoad load{3, Vec3(0.3, -0.2, 1.153), 0.0, 2.0};
+  sim.addForce(load);
 
   Stepper reference(model, settings.scheme, settings.period);
   State state = start;
   Points external = Points::Zero(model.mesh.numVertices(), 3);
   for (int k = 0; k < 400; ++k) {
     external.setZero();
-    if (state.time < 2.0) external.row(3) = Eigen::RowVector3d(0.3, -0.2, 1.153);
+    // The cycle holds the load times the share of the cycle it acts in.
+    external.row(3) = load.shareOf(state.time, settings.period) * load.value.transpose();
     reference.step(state, external);
     sim.step();
   }
@@ -370,6 +372,27 @@ TEST(SemiRigid, HalfRigidSpinConservesAngularMomentumExactly) {
     }
     EXPECT_LT(worst, 1e-11) << (frame == RigidFrame::Body ? "body" : "world");
   }
+}
+
+TEST(TimedLoads, ACyclesLoadIsItsShareOfTheCycleSoImpulsesAreExact) {
+  // A force of 1.153 N for 3 s on the dodecahedron, at a period that does not divide 3 s:
+  // the momentum put in is exactly F x 3 s (a load held for whole cycles would give
+  // F x ceil(3 / T) T).
+  const Model model = makeModel(makeDodecahedron());
+  SimulationSettings settings = settingsFor(model, 0.37);
+  ASSERT_GT(std::abs(std::remainder(3.0, settings.period)), 0.1 * settings.period);
+  Simulation sim(model, settings);
+  const Vec3 force(0.2, -0.4, 1.153);
+  sim.addForce(TimedLoad{0, force, 0.0, 3.0});
+  while (sim.time() < 5.0) sim.step();
+  EXPECT_LT((sim.diagnostics().momentum - 3.0 * force).norm(), 1e-12 * force.norm());
+  EXPECT_LT((sim.impulses().loads - 3.0 * force).norm(), 1e-12 * force.norm());
+  TimedLoad late{0, force, 1.0, 1.25};
+  EXPECT_DOUBLE_EQ(late.shareOf(0.9, 0.2), 0.5);
+  EXPECT_DOUBLE_EQ(late.shareOf(1.1, 0.1), 1.0);
+  EXPECT_DOUBLE_EQ(late.shareOf(1.2, 0.1), 0.5);
+  EXPECT_DOUBLE_EQ(late.shareOf(1.3, 0.1), 0.0);
+  EXPECT_DOUBLE_EQ(late.shareOf(0.5, 1.0), 0.25);
 }
 
 TEST(SemiRigid, BodyFrameKeepsTheLongRunEnergyOfSpinningSemiRigidModelsBetterThanTheWorldFrame) {

@@ -162,18 +162,21 @@ void Simulation::clearLoads() {
 
 void Simulation::gatherLoads(double t, const Points& position, Points& out) {
   out.setZero();
+  const double period = stepper_->period();
   for (const TimedLoad& f : forces_)
-    if (f.activeAt(t)) out.row(f.vertex) += f.value.transpose();
+    if (const double share = f.shareOf(t, period); share > 0.0)
+      out.row(f.vertex) += share * f.value.transpose();
   const Mesh& mesh = model_.mesh;
   for (const TimedLoad& torque : torques_) {
-    if (!torque.activeAt(t)) continue;
+    const double share = torque.shareOf(t, period);
+    if (share <= 0.0) continue;
     // Section 5.3: a torque becomes virtual forces on the neighbours.
     const auto neighbours = mesh.vertexNeighbors(torque.vertex);
     const size_t k = neighbours.size();
     for (size_t q = 0; q < k; ++q) armBuffer_[q] = position.row(neighbours[q]).transpose();
     Vec3 onCentre;
     torqueToForces(position.row(torque.vertex).transpose(),
-                   std::span<const Vec3>(armBuffer_.data(), k), torque.value,
+                   std::span<const Vec3>(armBuffer_.data(), k), share * torque.value,
                    std::span<Vec3>(forceBuffer_.data(), k), onCentre);
     out.row(torque.vertex) += onCentre.transpose();
     for (size_t q = 0; q < k; ++q) out.row(neighbours[q]) += forceBuffer_[q].transpose();

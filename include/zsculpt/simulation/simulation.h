@@ -16,6 +16,7 @@
 // so P and L are conserved exactly (to rounding) by internal forces, whatever chi is.
 // Vertex velocities are v_i = P / M + omega x (r_i - c) + u_i, omega = I^+ L.
 
+#include <algorithm>
 #include <limits>
 #include <optional>
 #include <string>
@@ -36,6 +37,13 @@ struct TimedLoad {
   double start = 0.0;
   double end = std::numeric_limits<double>::infinity();
   [[nodiscard]] bool activeAt(double t) const { return t >= start && t < end; }
+  /// The share of the cycle [t, t + period) during which the load acts. A cycle holds
+  /// value x share, so a load's impulse is value x (end - start) exactly, whatever the
+  /// period (a load held for whole cycles would overshoot by up to one period).
+  [[nodiscard]] double shareOf(double t, double period) const {
+    const double overlap = std::min(t + period, end) - std::max(t, start);
+    return overlap <= 0.0 ? 0.0 : std::min(1.0, overlap / period);
+  }
 };
 
 /// How the deformation velocities follow the rigid body's rotation over a cycle.
