@@ -6,21 +6,23 @@
 #
 #   scripts/soak.sh
 #
-# Environment: SOAK_CYCLES (default 200000), SOAK_SEED (default 1), SOAK_VALGRIND_CYCLES
+# Environment: SOAK_CYCLES (default 200000), SOAK_SEED (default 1), SOAK_RATIO (T / T_max,
+# default 0.95), SOAK_VALGRIND_CYCLES
 # (default 2000; 0 skips valgrind), ZSCULPT_BUILD_DIR (default build-rel), BUILD_JOBS (2).
 set -euo pipefail
 root="$(cd "$(dirname "$0")/.." && pwd)"
 build="${ZSCULPT_BUILD_DIR:-$root/build-rel}"
 cycles="${SOAK_CYCLES:-200000}"
 seed="${SOAK_SEED:-1}"
+ratio="${SOAK_RATIO:-0.95}"
 vg_cycles="${SOAK_VALGRIND_CYCLES:-2000}"
 
 [ -f "$build/CMakeCache.txt" ] || cmake -S "$root" -B "$build" -DZSCULPT_BUILD_BENCHMARKS=OFF >/dev/null
 cmake --build "$build" -j "${BUILD_JOBS:-2}" --target test_reliability
 binary="$build/tests/test_reliability"
 
-echo "soak: $cycles cycles, seed $seed" >&2
-ZSCULPT_SOAK_CYCLES="$cycles" ZSCULPT_SOAK_SEED="$seed" \
+echo "soak: $cycles cycles, seed $seed, T = $ratio T_max" >&2
+ZSCULPT_SOAK_CYCLES="$cycles" ZSCULPT_SOAK_SEED="$seed" ZSCULPT_SOAK_RATIO="$ratio" \
   /usr/bin/time -f "soak: wall %e s, max RSS %M KB" \
   "$binary" --gtest_filter='Soak.*' --gtest_brief=0
 

@@ -431,3 +431,34 @@ TEST_F(CliFigureImage, Figure10ShowsRestAndBothTorques) {
   EXPECT_GT(redness(p[1]), redness(p[0]) + 10.0);
   EXPECT_LT(redness(p[2]), redness(p[0]) - 10.0);
 }
+
+TEST_F(Cli, RunawayEnergyIsCaughtBeforeTheStateIsNonFinite) {
+  // Equation 3 above its stable period: the energy grows by a constant factor per step.
+  // The guard stops it while every number is still finite and writes a checkpoint from
+  // before the blow-up.
+  const std::string common = "simulate builtin:dodecahedron --scheme paper --perturb 0.05 "
+                             "--dt-ratio 1.3 --allow-unstable --steps 100000 --json";
+  const Result r = run(common + " --state-out " + path("s.csv") + " --csv " + path("d.csv"));
+  ASSERT_EQ(r.status, 3) << r.err;
+  EXPECT_NE(r.err.find("the energy ran away"), std::string::npos) << r.err;
+  EXPECT_EQ(std::count(r.err.begin(), r.err.end(), '\n'), 1) << r.err;
+  const auto j = nlohmann::json::parse(r.out);
+  const long at = j["diverged_at_step"].get<long>();
+  // The last diagnostics row is finite and far below the overflow.
+  const std::string csv = slurp(path("d.csv"));
+  EXPECT_EQ(csv.find("nan"), std::string::npos);
+  EXPECT_EQ(csv.find("inf"), std::string::npos);
+  // The state written is the checkpoint: its energy is that of the start, not the blow-up.
+  const std::string state = slurp(path("s.csv"));
+  EXPECT_EQ(lineCount(state), 21);
+  const Result resumed = run("simulate builtin:dodecahedron --steps 1 --json --state-in " + path("s.csv"));
+  ASSERT_EQ(resumed.status, 0) << resumed.err;
+  const auto k = nlohmann::json::parse(resumed.out);
+  EXPECT_LT(k["energy_start"].get<double>(), 10.0 * j["energy_start"].get<double>()) << "diverged at " << at;
+
+  // No false alarm where energy only changes form: a grid pinned at two corners falls under
+  // gravity (total energy near 0, kinetic and potential in hundreds of kilojoules), and a
+  // torus pushed and twisted.
+  EXPECT_EQ(run("simulate builtin:grid --gravity 0,0,-9.81 --pin 0 --pin 17 --steps 3000").status, 0);
+  EXPECT_EQ(run("simulate builtin:torus --force 3:0,0,5:0:1 --torque 50:0,0,2:0:2 --steps 3000").status, 0);
+}

@@ -10,6 +10,7 @@
 
 #include "commands.h"
 #include "model_options.h"
+#include "runaway_guard.h"
 #include "timed_edits.h"
 #include "zsculpt/core/errors.h"
 #include "zsculpt/io/atomic_file.h"
@@ -61,9 +62,14 @@ int runSimulate(const SimulateOptions& options) {
   long divergedAt = -1;
   Diagnostics last = start;
   const auto wallStart = std::chrono::steady_clock::now();
+  RunawayGuard guard(sim);
+  std::string divergence = "the state became non-finite";
+  const State* lastGood = &sim.state();
   for (long k = 1; k <= steps; ++k) {
     try {
       edits.beforeStep(sim);
+      guard.addEnergy(edits.takeEnergyChange());
+      guard.beforeStep(sim);
       sim.step();
     } catch (const DivergenceError&) {
       diverged = true;
@@ -74,6 +80,13 @@ int runSimulate(const SimulateOptions& options) {
     if (!std::isfinite(d.total())) {
       diverged = true;
       divergedAt = k;
+      break;
+    }
+    if (!guard.afterStep(sim, k, d)) {
+      diverged = true;
+      divergedAt = k;
+      divergence = guard.reason();
+      lastGood = &guard.checkpoint();
       break;
     }
     last = d;
@@ -95,7 +108,7 @@ int runSimulate(const SimulateOptions& options) {
       std::chrono::duration<double>(std::chrono::steady_clock::now() - wallStart).count();
   if (wantCsv)
     io::writeFileAtomically(options.run.csv, [&](std::ostream& out) { out << csv.str(); });
-  if (!options.run.stateOut.empty()) io::saveState(sim.state(), options.run.stateOut);
+  if (!options.run.stateOut.empty()) io::saveState(*lastGood, options.run.stateOut);
 
   const double energyDrift = (firstCount && lastCount && !diverged)
                                  ? (lastSum / lastCount) / (firstSum / firstCount) - 1.0
@@ -144,9 +157,10 @@ int runSimulate(const SimulateOptions& options) {
   }
   if (diverged) {
     std::cerr << "zsculpt: error: " << loaded.source << ": the simulation diverged at step "
-              << divergedAt << " (t = " << sim.time() << " s)"
-              << (options.run.stateOut.empty() ? "" : "; the last finite state was written")
-              << "\n";
+              << divergedAt << " (" << divergence << ")";
+    if (!options.run.stateOut.empty())
+      std::cerr << "; the last good state (t = " << lastGood->time << " s) was written";
+    std::cerr << "\n";
     return 3;
   }
   return 0;

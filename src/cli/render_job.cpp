@@ -11,6 +11,7 @@
 #include <memory>
 #include <sstream>
 
+#include "runaway_guard.h"
 #include "timed_edits.h"
 #include "zsculpt/app/view.h"
 #include "zsculpt/core/errors.h"
@@ -239,13 +240,25 @@ RenderJobResult runRenderJob(const RenderJobOptions& o) {
     writeFrame();
     ++next;
   }
+  RunawayGuard guard(sim);
+  const State* lastGood = &sim.state();
   for (long k = 1; k <= steps; ++k) {
     try {
       edits.beforeStep(sim);
+      guard.addEnergy(edits.takeEnergyChange());
+      guard.beforeStep(sim);
       sim.step();
     } catch (const DivergenceError&) {
       result.diverged = true;
       result.divergedAt = k;
+      result.divergence = "the state became non-finite";
+      break;
+    }
+    if (!guard.afterStep(sim, k, sim.diagnostics())) {
+      result.diverged = true;
+      result.divergedAt = k;
+      result.divergence = guard.reason();
+      lastGood = &guard.checkpoint();
       break;
     }
     record(k);
@@ -265,7 +278,7 @@ RenderJobResult runRenderJob(const RenderJobOptions& o) {
   plotOptions.title = fs::path(loaded.source).filename().string() + ": energy and momentum";
   render::savePlot(result.plot, render::energyMomentumPanels(series), plotOptions);
   if (!o.run.stateOut.empty()) {
-    io::saveState(sim.state(), o.run.stateOut);
+    io::saveState(*lastGood, o.run.stateOut);
     result.stateOut = o.run.stateOut;
   }
   result.wallSeconds =
@@ -304,7 +317,7 @@ int reportRenderJob(const RenderJobOptions& o, const RenderJobResult& r, const s
   }
   if (r.diverged) {
     std::cerr << "zsculpt: error: " << source << ": the simulation diverged at step " << r.divergedAt
-              << "; the frames and diagnostics up to it were written"
+              << " (" << r.divergence << "); the frames and diagnostics up to it were written"
               << (r.stateOut.empty() ? "" : ", and the last finite state") << "\n";
     return 3;
   }

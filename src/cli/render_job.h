@@ -31,6 +31,7 @@ struct RenderJobResult {
   int width = 0, height = 0, levels = 0;
   bool diverged = false;
   long divergedAt = -1;
+  std::string divergence;  ///< why: non-finite state, or runaway energy
 };
 
 /// Runs the job. Everything that can be refused (size, property, levels, output folder,

@@ -1,6 +1,7 @@
 #include "timed_edits.h"
 
 #include <algorithm>
+#include <cmath>
 
 #include "zsculpt/core/errors.h"
 
@@ -16,6 +17,7 @@ void TimedEdits::beforeStep(Simulation& sim) {
   if (schedule.finished()) return;
   // A millionth of a period absorbs the rounding of the accumulated time.
   for (const editing::TimedEdit& edit : schedule.due(sim.time(), 1e-6 * sim.period())) {
+    const double energyBefore = sim.diagnostics().total();
     editing::EditResult result;
     try {
       result = editor->apply({sim.model().mesh, sim.model().angles, sim.mutableProperties()},
@@ -26,6 +28,7 @@ void TimedEdits::beforeStep(Simulation& sim) {
     if (!result.changed) continue;
     ++applied;
     sim.propertiesChanged(result.matrixRows);  // local, even for global edits
+    energyChange += std::abs(sim.diagnostics().total() - energyBefore);
     if (verify)
       maxDifference = std::max(
           maxDifference, editing::verifyAgainstRebuild(sim.model(), sim.stepper().system(),

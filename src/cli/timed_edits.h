@@ -19,11 +19,19 @@ struct TimedEdits {
   bool verify = false;  ///< compare every local update with a full rebuild
   long applied = 0;
   double maxDifference = 0.0;
+  /// Sum of |change of the total energy| over the edits applied since the last take: an
+  /// edit changes the stored energy without any work (paper section 3).
+  double energyChange = 0.0;
 
   TimedEdits(const LoadedModel& loaded, const Simulation& sim, bool verifyMatrices);
   /// Applies the edits due at the simulation's current time. Throws InvalidInputError
   /// "<scene>: /edits/<k>: <reason>" for an edit the model refuses.
   void beforeStep(Simulation& sim);
+  double takeEnergyChange() {
+    const double e = energyChange;
+    energyChange = 0.0;
+    return e;
+  }
 };
 
 }  // namespace zsculpt::cli

@@ -1,0 +1,44 @@
+#include "runaway_guard.h"
+
+#include <algorithm>
+#include <cmath>
+#include <sstream>
+
+namespace zsculpt::cli {
+
+RunawayGuard::RunawayGuard(const Simulation& sim)
+    : start_(sim.diagnostics().total()), before_(sim.state().position), checkpoint_(sim.state()) {}
+
+void RunawayGuard::beforeStep(const Simulation& sim) { before_ = sim.state().position; }
+
+bool RunawayGuard::afterStep(const Simulation& sim, long k, const Diagnostics& diagnostics) {
+  const double energy = diagnostics.total();
+  const Points& after = sim.state().position;
+  // Work of the loads and of the constraints' virtual forces over this cycle (each is held
+  // over the cycle), counted in absolute value: the scale of energy moved in and out.
+  const double loads = (sim.externalForces().array() * (after - before_).array()).sum();
+  const double constraints =
+      sim.constraints().empty()
+          ? 0.0
+          : (sim.constraintForces().array() * (after - before_).array()).sum();
+  inflow_ += std::abs(loads) + std::abs(constraints);
+  const double bound =
+      start_ + kFactor * (std::abs(start_) + inflow_) + maxKinetic_ + 1e-12;
+  maxKinetic_ = std::max(maxKinetic_, diagnostics.kinetic);
+  if (!(energy <= bound)) {
+    std::ostringstream msg;
+    msg.precision(4);
+    msg << "the energy ran away at step " << k << " (" << energy << " J, more than "
+        << kFactor << " times the start energy " << start_ << " J plus the work put in, "
+        << inflow_ << " J, plus the largest kinetic energy before it)";
+    reason_ = msg.str();
+    return false;
+  }
+  if (k % kCheckpointEvery == 0) {
+    checkpoint_ = sim.state();
+    checkpointStep_ = k;
+  }
+  return true;
+}
+
+}  // namespace zsculpt::cli
