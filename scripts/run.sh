@@ -6,10 +6,9 @@ root="$(cd "$(dirname "$0")/.." && pwd)"
 bash "$root/scripts/install-deps.sh"
 bash "$root/scripts/build.sh"
 zsculpt="${ZSCULPT_BUILD_DIR:-$root/build}/zsculpt"
-if [ -n "${DISPLAY:-}${WAYLAND_DISPLAY:-}" ] && "$zsculpt" --help | grep -q "^  open"; then
+if [ -n "${DISPLAY:-}${WAYLAND_DISPLAY:-}" ]; then
   exec "$zsculpt" "$@"
-elif "$zsculpt" --help | grep -q "^  demo"; then
-  exec "$zsculpt" demo "$@"
 else
-  exec "$zsculpt" info builtin:torus "$@"
+  echo "no display: running the headless demo (zsculpt demo)" >&2
+  exec "$zsculpt" demo "$@"
 fi
