@@ -118,6 +118,48 @@ TEST(Forces, RadialSpringIsMinusGradientOfItsEnergy) {
   }
 }
 
+TEST(Forces, ACrushedSpringKeepsItsStiffnessWithinKappaAndStaysConservative) {
+  // Equation 1's transverse stiffness kappa (1 - lambda / l) falls without bound as an edge
+  // collapses; below lambda / 2 the spring is continued so that every stiffness stays
+  // within kappa (equation 5's period then still holds) and the force is still minus the
+  // gradient of the energy, continuous at lambda / 2, pushing the ends apart.
+  const double kappa = 3.0, rest = 1.0, h = 1e-6;
+  const Vec3 rj(0.1, -0.3, 0.2), axis = Vec3(1.0, 2.0, -0.5).normalized();
+  auto energyAt = [&](double l) {
+    Vec3 unused;
+    return radialSpringForce(rj + l * axis, rj, kappa, rest, unused);
+  };
+  EXPECT_NEAR(energyAt(0.5 - 1e-9), energyAt(0.5 + 1e-9), 1e-8);
+  for (double l : {0.05, 0.2, 0.45, 0.55, 0.8, 1.5}) {
+    const Vec3 ri = rj + l * axis;
+    Vec3 f;
+    radialSpringForce(ri, rj, kappa, rest, f);
+    // Compressed, it pushes i away from j; stretched, it pulls i back.
+    EXPECT_GT(l < rest ? f.dot(axis) : -f.dot(axis), 0.0) << l;
+    if (l < 0.5) {
+      EXPECT_TRUE(f.isApprox(kappa * (ri - rj), 1e-12)) << l;
+    }
+    // Minus the gradient, and a Jacobian (by central differences) within kappa.
+    Eigen::Matrix3d jacobian;
+    for (int c = 0; c < 3; ++c) {
+      Vec3 p = ri, m = ri, fp, fm;
+      p[c] += h;
+      m[c] -= h;
+      const double grad = (radialSpringForce(p, rj, kappa, rest, fp) -
+                           radialSpringForce(m, rj, kappa, rest, fm)) / (2 * h);
+      EXPECT_NEAR(f[c], -grad, 1e-6) << l;
+      jacobian.col(c) = (fp - fm) / (2 * h);
+    }
+    const double largest = Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d>(
+                               0.5 * (jacobian + jacobian.transpose())).eigenvalues().cwiseAbs().maxCoeff();
+    EXPECT_LE(largest, kappa * (1.0 + 1e-6)) << l;
+  }
+  // At zero length: no force, no NaN.
+  Vec3 f;
+  EXPECT_DOUBLE_EQ(radialSpringForce(rj, rj, kappa, rest, f), 0.25 * kappa * rest * rest);
+  EXPECT_TRUE(f.isZero());
+}
+
 TEST(Forces, ZeroRestLengthSpringIsLinear) {
   Vec3 f;
   radialSpringForce(Vec3(1, 2, 3), Vec3(0, 0, 1), 2.0, 0.0, f);

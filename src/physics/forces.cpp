@@ -27,10 +27,22 @@ double radialSpringForce(const Vec3& ri, const Vec3& rj, double kappa, double re
     return 0.5 * kappa * length * length;
   }
   const double stretch = length - restLength;
-  // At zero length the direction is undefined; the spring then pushes along no axis (the
-  // energy kappa/2 lambda^2 is at a cusp there). Only reachable by a collapsed edge.
-  forceOnI = length > 0.0 ? Vec3(-kappa * stretch / length * d) : Vec3::Zero();
-  return 0.5 * kappa * stretch * stretch;
+  if (!(length > 0.0)) {
+    forceOnI = Vec3::Zero();
+    return 0.25 * kappa * restLength * restLength;
+  }
+  // Equation 1's force per unit of the arm, kappa (l - lambda) / l, is the spring's
+  // transverse stiffness; it falls without bound as the edge collapses (l -> 0), far below
+  // the -kappa that equation 5's period allows for, so an edge crushed by a storm of loads
+  // makes any fixed step blow up (and at l = 0 the direction is undefined). Below half
+  // the rest length the spring is continued by E = kappa lambda^2 / 4 - kappa l^2 / 2:
+  // the same energy, force and slope at l = lambda / 2, a force kappa (r_i - r_j) that
+  // still pushes the ends apart and vanishes smoothly at l = 0, and stiffnesses bounded by
+  // kappa. Above lambda / 2 it is equation 1 exactly.
+  const double coefficient = std::max(kappa * stretch / length, -kappa);
+  forceOnI = -coefficient * d;
+  if (length >= 0.5 * restLength) return 0.5 * kappa * stretch * stretch;
+  return 0.25 * kappa * restLength * restLength - 0.5 * kappa * length * length;
 }
 
 namespace {
@@ -154,8 +166,8 @@ PotentialEnergy potentialEnergy(const Model& model, const Points& position) {
   for (Index e = 0; e < mesh.numEdges(); ++e) {
     const auto [i, j] = mesh.edge(e);
     const double kappa = edgeStiffness(p.stiffness[i], p.stiffness[j]);
-    const double stretch = (position.row(i) - position.row(j)).norm() - p.restLength[e];
-    energy.radial += 0.5 * kappa * stretch * stretch;
+    Vec3 unused;
+    energy.radial += radialSpringForce(position.row(i), position.row(j), kappa, p.restLength[e], unused);
   }
   const auto& angles = model.angles.angles;
   for (size_t k = 0; k < angles.size(); ++k) {
@@ -248,7 +260,8 @@ ZSCULPT_KERNEL void radialBatch(Index count, const Index* __restrict edge,
     const double kappa = edgeKappa[edge[j]], rest = restLength[edge[j]], l = length[j];
     const bool positive = l > 0.0;
     const double safe = select(positive, l, 1.0);
-    const double stretched = select(positive, kappa * (l - rest) / safe, 0.0);
+    // Equation 1, continued below half the rest length (radialSpringForce says why).
+    const double stretched = select(positive, std::max(kappa * (l - rest) / safe, -kappa), 0.0);
     const double coefficient = select(kappa == 0.0, 0.0, select(rest == 0.0, kappa, stretched));
     const double inv = select(positive, 1.0 / safe, 0.0);
     const double ux = ax[j], uy = ay[j], uz = az[j];
@@ -330,7 +343,7 @@ ZSCULPT_KERNEL void radialOnlyBatch(Index count, const Index* __restrict edge,
     const double kappa = edgeKappa[edge[j]], rest = restLength[edge[j]], l = length[j];
     const bool positive = l > 0.0;
     const double safe = select(positive, l, 1.0);
-    const double stretched = select(positive, kappa * (l - rest) / safe, 0.0);
+    const double stretched = select(positive, std::max(kappa * (l - rest) / safe, -kappa), 0.0);
     const double coefficient = select(kappa == 0.0, 0.0, select(rest == 0.0, kappa, stretched));
     gx[j] = coefficient * ax[j];
     gy[j] = coefficient * ay[j];

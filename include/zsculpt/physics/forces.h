@@ -20,7 +20,10 @@ double angleAt(const Vec3& centre, const Vec3& a, const Vec3& b);
 
 /// Radial spring (section 5.1), energy kappa/2 (d - lambda)^2 with d = |r_i - r_j|.
 /// Writes the force on i (the force on j is its negative) and returns the energy. With
-/// lambda = 0 the force is the linear -kappa (r_i - r_j) of equation 1.
+/// lambda = 0 the force is the linear -kappa (r_i - r_j) of equation 1. Below d = lambda/2
+/// (an edge crushed to less than half its rest length) the spring is continued by
+/// kappa lambda^2/4 - kappa d^2/2, C1 at lambda/2, so that its stiffness stays within
+/// kappa and the critical period of equation 5 still holds (forces.cpp says why).
 double radialSpringForce(const Vec3& ri, const Vec3& rj, double kappa, double restLength,
                          Vec3& forceOnI);
 
