@@ -272,8 +272,7 @@ EnergyChange Editor::termEnergy(const EditTarget& target, const State& state,
   for (Index e : edgeTerms_) {
     const auto [i, j] = target.mesh.edge(e);
     const double kappa = edgeStiffness(p.stiffness[i], p.stiffness[j]);
-    const double stretch = (x.row(i) - x.row(j)).norm() - p.restLength[e];
-    energy.potential += 0.5 * kappa * stretch * stretch;
+    energy.potential += radialSpringEnergy((x.row(i) - x.row(j)).norm(), kappa, p.restLength[e]);
   }
   for (Index k : angleTerms_) {
     const auto [c, a, b] = target.angles.angles[static_cast<size_t>(k)];

@@ -29,7 +29,7 @@ double radialSpringForce(const Vec3& ri, const Vec3& rj, double kappa, double re
   const double stretch = length - restLength;
   if (!(length > 0.0)) {
     forceOnI = Vec3::Zero();
-    return 0.25 * kappa * restLength * restLength;
+    return radialSpringEnergy(length, kappa, restLength);
   }
   // Equation 1's force per unit of the arm, kappa (l - lambda) / l, is the spring's
   // transverse stiffness; it falls without bound as the edge collapses (l -> 0), far below
@@ -41,7 +41,14 @@ double radialSpringForce(const Vec3& ri, const Vec3& rj, double kappa, double re
   // kappa. Above lambda / 2 it is equation 1 exactly.
   const double coefficient = std::max(kappa * stretch / length, -kappa);
   forceOnI = -coefficient * d;
-  if (length >= 0.5 * restLength) return 0.5 * kappa * stretch * stretch;
+  return radialSpringEnergy(length, kappa, restLength);
+}
+
+double radialSpringEnergy(double length, double kappa, double restLength) {
+  if (length >= 0.5 * restLength) {
+    const double stretch = length - restLength;
+    return 0.5 * kappa * stretch * stretch;
+  }
   return 0.25 * kappa * restLength * restLength - 0.5 * kappa * length * length;
 }
 
@@ -166,8 +173,7 @@ PotentialEnergy potentialEnergy(const Model& model, const Points& position) {
   for (Index e = 0; e < mesh.numEdges(); ++e) {
     const auto [i, j] = mesh.edge(e);
     const double kappa = edgeStiffness(p.stiffness[i], p.stiffness[j]);
-    Vec3 unused;
-    energy.radial += radialSpringForce(position.row(i), position.row(j), kappa, p.restLength[e], unused);
+    energy.radial += radialSpringEnergy((position.row(i) - position.row(j)).norm(), kappa, p.restLength[e]);
   }
   const auto& angles = model.angles.angles;
   for (size_t k = 0; k < angles.size(); ++k) {

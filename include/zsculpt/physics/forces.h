@@ -26,6 +26,8 @@ double angleAt(const Vec3& centre, const Vec3& a, const Vec3& b);
 /// kappa and the critical period of equation 5 still holds (forces.cpp says why).
 double radialSpringForce(const Vec3& ri, const Vec3& rj, double kappa, double restLength,
                          Vec3& forceOnI);
+/// The energy alone of a radial spring of length `length` (what radialSpringForce returns).
+double radialSpringEnergy(double length, double kappa, double restLength);
 
 /// Angle spring (section 5.2), energy kappa_theta/2 (theta - theta_0)^2 for the angle at
 /// `centre` between arms to `a` and `b`. Writes the forces on centre, a and b (summing to
