@@ -62,33 +62,14 @@ int runSimulate(const SimulateOptions& options) {
   long divergedAt = -1;
   Diagnostics last = start;
   const auto wallStart = std::chrono::steady_clock::now();
-  RunawayGuard guard(sim);
-  std::string divergence = "the state became non-finite";
-  const State* lastGood = &sim.state();
+  GuardedRun run(sim, edits);
   for (long k = 1; k <= steps; ++k) {
-    try {
-      edits.beforeStep(sim);
-      guard.addEnergy(edits.takeEnergyChange());
-      guard.beforeStep(sim);
-      sim.step();
-    } catch (const DivergenceError&) {
+    if (!run.step(k)) {
       diverged = true;
       divergedAt = k;
       break;
     }
-    const Diagnostics d = sim.diagnostics();
-    if (!std::isfinite(d.total())) {
-      diverged = true;
-      divergedAt = k;
-      break;
-    }
-    if (!guard.afterStep(sim, k, d)) {
-      diverged = true;
-      divergedAt = k;
-      divergence = guard.reason();
-      lastGood = &guard.checkpoint();
-      break;
-    }
+    const Diagnostics& d = run.diagnostics();
     last = d;
     if (wantCsv) row(k, d);
     if (k <= window) {
@@ -108,7 +89,7 @@ int runSimulate(const SimulateOptions& options) {
       std::chrono::duration<double>(std::chrono::steady_clock::now() - wallStart).count();
   if (wantCsv)
     io::writeFileAtomically(options.run.csv, [&](std::ostream& out) { out << csv.str(); });
-  if (!options.run.stateOut.empty()) io::saveState(*lastGood, options.run.stateOut);
+  if (!options.run.stateOut.empty()) io::saveState(run.lastGood(), options.run.stateOut);
 
   const double energyDrift = (firstCount && lastCount && !diverged)
                                  ? (lastSum / lastCount) / (firstSum / firstCount) - 1.0
@@ -157,9 +138,9 @@ int runSimulate(const SimulateOptions& options) {
   }
   if (diverged) {
     std::cerr << "zsculpt: error: " << loaded.source << ": the simulation diverged at step "
-              << divergedAt << " (" << divergence << ")";
+              << divergedAt << " (" << run.why() << ")";
     if (!options.run.stateOut.empty())
-      std::cerr << "; the last good state (t = " << lastGood->time << " s) was written";
+      std::cerr << "; the last good state (t = " << run.lastGood().time << " s) was written";
     std::cerr << "\n";
     return 3;
   }

@@ -205,8 +205,7 @@ RenderJobResult runRenderJob(const RenderJobOptions& o) {
   for (auto* column : {&series.time, &series.kinetic, &series.potential, &series.total, &series.px,
                        &series.py, &series.pz, &series.lx, &series.ly, &series.lz})
     column->reserve(static_cast<size_t>(steps) + 1);
-  auto record = [&](long step) {
-    const Diagnostics d = sim.diagnostics();
+  auto record = [&](long step, const Diagnostics& d) {
     csv << step << ',' << sim.time() << ',' << d.kinetic << ',' << d.potential.total() << ','
         << d.total() << ',' << d.momentum.x() << ',' << d.momentum.y() << ',' << d.momentum.z()
         << ',' << d.angularMomentum.x() << ',' << d.angularMomentum.y() << ','
@@ -235,33 +234,20 @@ RenderJobResult runRenderJob(const RenderJobOptions& o) {
   ProgressBar progress(o.progress);
   const auto wallStart = std::chrono::steady_clock::now();
   size_t next = 0;
-  record(0);
+  record(0, sim.diagnostics());
   if (frameAt[next] == 0) {
     writeFrame();
     ++next;
   }
-  RunawayGuard guard(sim);
-  const State* lastGood = &sim.state();
+  GuardedRun run(sim, edits);
   for (long k = 1; k <= steps; ++k) {
-    try {
-      edits.beforeStep(sim);
-      guard.addEnergy(edits.takeEnergyChange());
-      guard.beforeStep(sim);
-      sim.step();
-    } catch (const DivergenceError&) {
+    if (!run.step(k)) {
       result.diverged = true;
       result.divergedAt = k;
-      result.divergence = "the state became non-finite";
+      result.divergence = run.why();
       break;
     }
-    if (!guard.afterStep(sim, k, sim.diagnostics())) {
-      result.diverged = true;
-      result.divergedAt = k;
-      result.divergence = guard.reason();
-      lastGood = &guard.checkpoint();
-      break;
-    }
-    record(k);
+    record(k, run.diagnostics());
     if (next < frameAt.size() && frameAt[next] == k) {
       writeFrame();
       ++next;
@@ -278,7 +264,7 @@ RenderJobResult runRenderJob(const RenderJobOptions& o) {
   plotOptions.title = fs::path(loaded.source).filename().string() + ": energy and momentum";
   render::savePlot(result.plot, render::energyMomentumPanels(series), plotOptions);
   if (!o.run.stateOut.empty()) {
-    io::saveState(*lastGood, o.run.stateOut);
+    io::saveState(run.lastGood(), o.run.stateOut);
     result.stateOut = o.run.stateOut;
   }
   result.wallSeconds =

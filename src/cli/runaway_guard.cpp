@@ -4,6 +4,8 @@
 #include <cmath>
 #include <sstream>
 
+#include "zsculpt/core/errors.h"
+
 namespace zsculpt::cli {
 
 RunawayGuard::RunawayGuard(const Simulation& sim)
@@ -37,6 +39,29 @@ bool RunawayGuard::afterStep(const Simulation& sim, long k, const Diagnostics& d
   if (k % kCheckpointEvery == 0) {
     checkpoint_ = sim.state();
     checkpointStep_ = k;
+  }
+  return true;
+}
+
+bool GuardedRun::step(long k) {
+  try {
+    edits_.beforeStep(sim_);
+    guard_.addEnergy(edits_.takeEnergyChange());
+    guard_.beforeStep(sim_);
+    sim_.step();  // rolls back and throws on a non-finite state
+  } catch (const DivergenceError&) {
+    why_ = "the state became non-finite";
+    return false;
+  }
+  diagnostics_ = sim_.diagnostics();
+  if (!std::isfinite(diagnostics_.total())) {
+    why_ = "the energy became non-finite";
+    return false;
+  }
+  if (!guard_.afterStep(sim_, k, diagnostics_)) {
+    why_ = guard_.reason();
+    runaway_ = true;
+    return false;
   }
   return true;
 }
