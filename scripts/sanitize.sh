@@ -17,9 +17,11 @@ which=("$@")
 [ ${#which[@]} -eq 0 ] && which=(asan tsan)
 status=0
 
+# No -Werror: GCC 12 at -O2 with sanitizers gives false -Wmaybe-uninitialized warnings
+# (std::variant of editing commands in src/app/panels.cpp) that stop the build.
 configure() {  # folder, sanitizers
   cmake -S "$root" -B "$1" -DCMAKE_BUILD_TYPE=RelWithDebInfo -DZSCULPT_SANITIZE="$2" \
-    -DZSCULPT_BUILD_BENCHMARKS=OFF >/dev/null
+    -DZSCULPT_BUILD_BENCHMARKS=OFF -DZSCULPT_WERROR=OFF >/dev/null
 }
 
 # Findings are fatal and printed with a stack; LeakSanitizer runs at each test's exit.
