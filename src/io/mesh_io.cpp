@@ -410,11 +410,32 @@ void preflightOff(std::istream& in, const std::string& name, std::uintmax_t size
   if (keyword.find('n') != std::string::npos || keyword.find('4') != std::string::npos) return;
   if (tokens[1] == "BINARY") return;
   // An ASCII vertex ("0 0 0\n") or face ("1 0\n") takes at least 4 bytes.
+  unsigned long long vertices = 0, faces = 0;
   try {
-    checkDeclaredCount(name, std::stoull(tokens[1]), "vertices", 4, size);
-    checkDeclaredCount(name, std::stoull(tokens[2]), "faces", 4, size);
+    vertices = std::stoull(tokens[1]);
+    faces = std::stoull(tokens[2]);
   } catch (const std::logic_error&) {
-    // Not numbers: assimp will say what is wrong.
+    return;  // not numbers: assimp will say what is wrong
+  }
+  checkDeclaredCount(name, vertices, "vertices", 4, size);
+  checkDeclaredCount(name, faces, "faces", 4, size);
+  // Assimp 5.2 skips a face line whose vertex count is 0, not a number or above 9 by
+  // decrementing the mesh's face count without moving on; more such lines than declared
+  // faces make that count wrap below zero and the reader crash
+  // (tests/regressions/mesh/off_zero_count_face_lines_underflow_segv). Count them as it
+  // would: after the vertex lines, until the declared number of good faces is read. Empty
+  // and comment lines count as bad too (the safe side).
+  for (unsigned long long v = 0; v < vertices && std::getline(in, line); ++v) {
+  }
+  unsigned long long good = 0, bad = 0;
+  while (good < faces && std::getline(in, line)) {
+    std::istringstream words(line);
+    long long count = 0;
+    if (words >> count && count >= 1 && count <= 9)
+      ++good;
+    else if (++bad > faces)
+      preflightError(name, "more face lines without a vertex count of 1 to 9 than the " +
+                               std::to_string(faces) + " faces the header declares");
   }
 }
 
