@@ -246,7 +246,12 @@ inline double select(bool cond, double a, double b) {
 // do the same operations in the same order, so they round alike: the forces do not depend
 // on the machine's choice. Square roots go through Eigen's packet sqrt in a pass of their
 // own: std::sqrt in a loop keeps its errno path, and the loop scalar.
+// Sanitized builds (CMakeLists.txt) define ZSCULPT_NO_TARGET_CLONES: no ifunc resolvers.
+#ifdef ZSCULPT_NO_TARGET_CLONES
+#define ZSCULPT_KERNEL
+#else
 #define ZSCULPT_KERNEL __attribute__((target_clones("avx2", "default")))
+#endif
 
 // Radial springs and arms of one chunk, per half-edge j (from v to w, edge e), after
 // squaredLength[j] = |r_w - r_v|^2 was turned into the length: the force on v,
