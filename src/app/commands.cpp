@@ -7,17 +7,11 @@
 #include <sstream>
 
 #include "zsculpt/core/errors.h"
+#include "zsculpt/core/overloaded.h"
 
 namespace zsculpt::app {
 
 namespace {
-
-template <class... Ts>
-struct Overloaded : Ts... {
-  using Ts::operator()...;
-};
-template <class... Ts>
-Overloaded(Ts...) -> Overloaded<Ts...>;
 
 using nlohmann::json;
 

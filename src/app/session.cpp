@@ -8,6 +8,7 @@
 
 #include "zsculpt/constraints/constraints.h"
 #include "zsculpt/core/errors.h"
+#include "zsculpt/core/overloaded.h"
 #include "zsculpt/editing/scene_edits.h"
 #include "zsculpt/io/mesh_io.h"
 #include "zsculpt/physics/matrices.h"
@@ -16,13 +17,6 @@
 namespace zsculpt::app {
 
 namespace {
-
-template <class... Ts>
-struct Overloaded : Ts... {
-  using Ts::operator()...;
-};
-template <class... Ts>
-Overloaded(Ts...) -> Overloaded<Ts...>;
 
 Scheme toScheme(io::SimulationScheme s) { return schemeFromName(io::schemeName(s)); }
 io::SimulationScheme toSceneScheme(Scheme s) { return io::schemeFromName(schemeName(s)); }

@@ -7,22 +7,6 @@
 
 namespace zsculpt::app {
 
-namespace {
-
-const char* unitOf(Property p) {
-  switch (p) {
-    case Property::Mass: return "kg";
-    case Property::Damping: return "kg/s";
-    case Property::Stiffness: return "N/m";
-    case Property::AngularStiffness: return "N m/rad^2";
-    case Property::Rigidity: return "";
-    case Property::RestLength: return "m";
-    case Property::RestAngle: return "rad";
-  }
-  return "";
-}
-
-}  // namespace
 
 int affordableLevels(const Mesh& mesh, int wanted, Index maxRefinedVertices) {
   // Doo-Sabin: one vertex per face corner, so level 1 has sum of face sizes vertices and
@@ -78,9 +62,9 @@ render::Frame& FrameBuilder::build(const Snapshot& snapshot, const ViewSettings&
   f.display.legend = view.colourByProperty;
   if (view.colourByProperty && snapshot.scalar.size() == mesh_.numVertices()) {
     f.scalar.values = &snapshot.scalar;
-    const char* unit = unitOf(snapshot.scalarProperty);
+    const std::string_view unit = propertyUnit(snapshot.scalarProperty);
     f.scalar.name = std::string(propertyName(snapshot.scalarProperty));
-    if (*unit != '\0') {
+    if (!unit.empty()) {
       f.scalar.name += " (";
       f.scalar.name += unit;
       f.scalar.name += ")";

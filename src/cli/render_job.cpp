@@ -85,19 +85,6 @@ class ProgressBar {
   int last_ = -1;
 };
 
-std::string unitSuffix(Property p) {
-  switch (p) {
-    case Property::Mass: return " (kg)";
-    case Property::Damping: return " (kg/s)";
-    case Property::Stiffness: return " (N/m)";
-    case Property::AngularStiffness: return " (N m/rad^2)";
-    case Property::RestLength: return " (m)";
-    case Property::RestAngle: return " (rad)";
-    case Property::Rigidity: return "";
-  }
-  return "";
-}
-
 }  // namespace
 
 RenderJobResult runRenderJob(const RenderJobOptions& o) {
@@ -178,7 +165,9 @@ RenderJobResult runRenderJob(const RenderJobOptions& o) {
       render::propertyAsVertexScalar(sim.model().mesh, sim.model().angles, sim.model().properties,
                                      *property, scalar);
       frame.scalar.values = &scalar;
-      frame.scalar.name = std::string(propertyName(*property)) + unitSuffix(*property);
+      frame.scalar.name = std::string(propertyName(*property));
+      if (const std::string_view unit = propertyUnit(*property); !unit.empty())
+        frame.scalar.name += " (" + std::string(unit) + ")";
     }
     frame.display.legend = property.has_value();
     frame.camera.target = centreOfMass() + targetOffset;

@@ -5,19 +5,13 @@
 #include <sstream>
 
 #include "zsculpt/core/errors.h"
+#include "zsculpt/core/overloaded.h"
 #include "zsculpt/editing/local_update.h"
 #include "zsculpt/physics/forces.h"
 
 namespace zsculpt::editing {
 
 namespace {
-
-template <class... Ts>
-struct Overloaded : Ts... {
-  using Ts::operator()...;
-};
-template <class... Ts>
-Overloaded(Ts...) -> Overloaded<Ts...>;
 
 void describeBrush(std::ostringstream& out, const Brush& b) {
   out << propertyName(b.property) << ' ' << brushModeName(b.mode);

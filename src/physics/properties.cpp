@@ -10,6 +10,19 @@
 
 namespace zsculpt {
 
+std::string_view propertyUnit(Property property) {
+  switch (property) {
+    case Property::Mass: return "kg";
+    case Property::Damping: return "kg/s";
+    case Property::Stiffness: return "N/m";
+    case Property::AngularStiffness: return "N m/rad^2";
+    case Property::Rigidity: return "";
+    case Property::RestLength: return "m";
+    case Property::RestAngle: return "rad";
+  }
+  return "";
+}
+
 std::string_view propertyName(Property property) {
   switch (property) {
     case Property::Mass: return "mass";
