@@ -25,8 +25,12 @@ configure() {  # folder, sanitizers
 }
 
 # Findings are fatal and printed with a stack; LeakSanitizer runs at each test's exit.
-# GL drivers (llvmpipe via OSMesa) and GLFW leak by design: their reports are suppressed,
-# ours are not (written next to the logs, build-sanitize-logs/).
+# GL drivers (via OSMesa and GLX), GLFW and assimp leak by design: their reports are
+# suppressed, ours are not (written next to the logs, build-sanitize-logs/).
+# Mesa renders with softpipe here, not llvmpipe: llvmpipe's JIT (LLVM 15's MCJIT) frees
+# with an operator that does not match its allocation, which ASan reports inside libLLVM
+# in every offscreen test. softpipe is the same Mesa front end without the JIT.
+export GALLIUM_DRIVER="${GALLIUM_DRIVER:-softpipe}"
 export ASAN_OPTIONS="${ASAN_OPTIONS:-detect_leaks=1:abort_on_error=1:detect_stack_use_after_return=1}"
 export UBSAN_OPTIONS="${UBSAN_OPTIONS:-print_stacktrace=1:halt_on_error=1}"
 logs="${SANITIZE_LOG_DIR:-$root/build-sanitize-logs}"
@@ -41,6 +45,8 @@ leak:libOSMesa
 leak:libglfw
 leak:libX11
 leak:libfontconfig
+# assimp 5.2's importers leak on some malformed files (FuzzRegressions.Mesh, the corpus).
+leak:libassimp
 SUPP
 export LSAN_OPTIONS="${LSAN_OPTIONS:-suppressions=$logs/lsan.supp:print_suppressions=0}"
 export TSAN_OPTIONS="${TSAN_OPTIONS:-halt_on_error=1:second_deadlock_stack=1}"
@@ -52,8 +58,13 @@ for w in "${which[@]}"; do
       configure "$build" address,undefined
       cmake --build "$build" -j "$jobs"
       # The suite's own timeouts are for Release speed; sanitizers are several times slower.
-      if ! ctest --test-dir "$build" --output-on-failure -j "$jobs" --timeout 1800 \
+      if ! ctest --test-dir "$build" --output-on-failure -j "$jobs" --timeout 1800 -E '^Window\.' \
           ${CTEST_ARGS:-} 2>&1 | tee "$logs/asan.log"; then status=1; fi
+      # The window tests load the GLX driver, which Mesa unloads at exit before LeakSanitizer
+      # runs: its one allocation it keeps (112 bytes) then has no module to be named by or
+      # suppressed with. Every other ASan and UBSan check stays on for them.
+      if ! ASAN_OPTIONS="$ASAN_OPTIONS:detect_leaks=0" ctest --test-dir "$build" --output-on-failure \
+          --timeout 1800 -R '^Window\.' ${CTEST_ARGS:-} 2>&1 | tee -a "$logs/asan.log"; then status=1; fi
       ;;
     tsan)
       build="$root/build-tsan"

@@ -542,6 +542,39 @@ TEST(Constraints, PinFollowsAMovingTarget) {
   EXPECT_LT(worst, 1e-9);
 }
 
+TEST(Constraints, TheirWorkIsTheEnergyTheyPutIn) {
+  // Undamped, no loads: every change of the total energy is the constraints' work (what the
+  // soak counts) plus the scheme's own energy error, which is second order in T. A drag pulls
+  // a corner out and back, another corner pinned; the largest gap between the energy gained
+  // and the work falls fourfold when T halves, so nothing else is missing from the work.
+  const Model model = makeModel(makeGrid(6), ModelSpec{.angular = 0.2});
+  auto run = [&](double ratio) {
+    Simulation sim(model, settingsFor(model, ratio));
+    sim.addPositionConstraint(35);
+    const Index drag = sim.addPositionConstraint(0);
+    const Vec3 origin = model.mesh.positions().row(0).transpose();
+    const double e0 = sim.diagnostics().total();
+    double work = 0.0, largest = 0.0, gap = 0.0;
+    const double duration = 600 * 0.3 * criticalPeriod(SystemMatrices(model));
+    while (sim.time() < duration) {
+      const double t = sim.time() + sim.period();
+      sim.setConstraintTarget(drag, origin + Vec3(0.0, 0.0, 0.4 * std::sin(0.5 * t)));
+      sim.step();
+      work += sim.constraintWork();
+      const double e = sim.diagnostics().total() - e0;
+      largest = std::max(largest, std::abs(e));
+      gap = std::max(gap, std::abs(e - work));
+    }
+    return std::pair{largest, gap};
+  };
+  const auto [energy, gap] = run(0.3);
+  const auto [energyHalf, gapHalf] = run(0.15);
+  EXPECT_GT(energy, 0.1);  // the drag did put energy in
+  EXPECT_NEAR(energyHalf, energy, 0.01 * energy);
+  EXPECT_LT(gap, 0.03 * energy);
+  EXPECT_LT(gapHalf, 0.3 * gap) << "gap " << gap << " at 0.3 T_max, " << gapHalf << " at 0.15";
+}
+
 TEST(Constraints, PinsHoldOnAFullyRigidBody) {
   // A rigid pendulum: one pinned vertex, gravity; the body turns about the pin.
   ModelSpec spec;

@@ -251,6 +251,7 @@ void Simulation::step() {
       // The plain elastic cycle: nothing is split, nothing is constrained.
       stepper_->step(state_, external_);
       constraintForce_.setZero();
+      constraintWork_ = 0.0;
       baseForceValid_ = false;
       addToLedger(Vec3::Zero(), velocityDelta_);
     } else {
@@ -433,6 +434,7 @@ void Simulation::coupledStep() {
                       startElasticTorque_);
   }
   constraintForce_.setZero();
+  constraintWork_ = 0.0;
   report_ = ConstraintReport{};
   if (constrained) {
     const auto support = solver_.support();
@@ -495,6 +497,13 @@ void Simulation::coupledStep() {
     const auto support = solver_.support();
     for (size_t a = 0; a < support.size(); ++a) {
       const Index v = support[a];
+      // The constraints' work: their virtual forces over the cycle, and the kinetic energy
+      // the velocity correction adds or removes.
+      const Eigen::RowVector3d before = state_.velocity.row(v);
+      const Eigen::RowVector3d after = before + velocityDelta_.row(static_cast<Index>(a));
+      constraintWork_ +=
+          constraintForce_.row(v).dot(state_.position.row(v) - supportStart_.row(static_cast<Index>(a))) +
+          0.5 * mass[v] * (after.squaredNorm() - before.squaredNorm());
       state_.velocity.row(v) += velocityDelta_.row(static_cast<Index>(a));
       if (rigidActive_) deformation_.row(v) += velocityDelta_.row(static_cast<Index>(a));
     }

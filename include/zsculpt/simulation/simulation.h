@@ -131,6 +131,9 @@ class Simulation {
   [[nodiscard]] const Points& externalForces() const { return external_; }
   /// Virtual forces of the constraints during the last step (N x 3).
   [[nodiscard]] const Points& constraintForces() const { return constraintForce_; }
+  /// Work the constraints did during the last step (J): their virtual forces times the
+  /// constrained vertices' displacements, plus the kinetic energy of the velocity correction.
+  [[nodiscard]] double constraintWork() const { return constraintWork_; }
   [[nodiscard]] const ImpulseLedger& impulses() const { return ledger_; }
 
   /// chi_i in use (painted, or from the stiffness cap) and sigma_i = 1 - chi_i.
@@ -194,6 +197,7 @@ class Simulation {
   std::uint64_t constraintRevision_ = 0;
   bool responseValid_ = false;
   Points constraintForce_;
+  double constraintWork_ = 0.0;
   Points supportStart_, supportElastic_, velocityDelta_;
   std::vector<double> supportChi_;
   ConstraintReport report_;
