@@ -15,6 +15,7 @@
 #include <cstring>
 #include <filesystem>
 #include <fstream>
+#include <iterator>
 #include <limits>
 #include <memory>
 #include <nlohmann/json.hpp>
@@ -394,12 +395,30 @@ void checkDeclaredCount(const std::string& name, std::uintmax_t count, const std
                              ", more than a file of " + std::to_string(size) + " bytes can hold");
 }
 
+// One line as assimp's OFF reader sees it (GetNextLine in ParsingUtils.h): a line ends at
+// any of \r \n \f and a run of them is one break, so there are no empty lines; \0 ends the
+// text; a line holds at most 4096 characters, the rest of a longer one is the next line.
+bool nextAssimpLine(std::istream& in, std::string& line) {
+  constexpr size_t kBufferSize = 4096;
+  auto isBreak = [](int c) { return c == '\r' || c == '\n' || c == '\f'; };
+  line.clear();
+  while (isBreak(in.peek())) in.get();
+  int c = in.peek();
+  if (c == std::char_traits<char>::eof() || c == '\0') return false;
+  while (line.size() < kBufferSize && (c = in.peek()) != std::char_traits<char>::eof() &&
+         c != '\0' && !isBreak(c))
+    line.push_back(static_cast<char>(in.get()));
+  return true;
+}
+
 void preflightOff(std::istream& in, const std::string& name, std::uintmax_t size) {
+  const std::string text{std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>()};
+  std::istringstream header(text);
   std::string token;
   std::vector<std::string> tokens;
   std::string line;
   // The keyword and the counts, skipping comments; at most a few lines in.
-  for (int lines = 0; tokens.size() < 4 && lines < 64 && std::getline(in, line); ++lines) {
+  for (int lines = 0; tokens.size() < 4 && lines < 64 && std::getline(header, line); ++lines) {
     line = line.substr(0, line.find('#'));
     std::istringstream words(line);
     while (tokens.size() < 4 && words >> token) tokens.push_back(token);
@@ -423,15 +442,50 @@ void preflightOff(std::istream& in, const std::string& name, std::uintmax_t size
   // decrementing the mesh's face count without moving on; more such lines than declared
   // faces make that count wrap below zero and the reader crash
   // (tests/regressions/mesh/off_zero_count_face_lines_underflow_segv). Count them as it
-  // would: after the vertex lines, until the declared number of good faces is read. Empty
-  // and comment lines count as bad too (the safe side).
-  for (unsigned long long v = 0; v < vertices && std::getline(in, line); ++v) {
+  // would, walking the text as its reader does: the counts are tokens, the edge count is
+  // read even when missing (then the vertex lines start inside the line after the header:
+  // .../off_carriage_return_face_lines_segv), and lines are its lines (nextAssimpLine).
+  // Comment lines count as bad too (the safe side).
+  const size_t n = text.size();
+  size_t pos = 0;
+  auto skipSpacesAndBreaks = [&] {
+    while (pos < n &&
+           (text[pos] == ' ' || text[pos] == '\t' || text[pos] == '\r' || text[pos] == '\n'))
+      ++pos;
+  };
+  auto nextToken = [&] {
+    skipSpacesAndBreaks();
+    while (pos < n && (text[pos] == '#' || text[pos] == '\n' || text[pos] == '\r')) {
+      while (pos < n && text[pos] != '\n' && text[pos] != '\r' && text[pos] != '\0') ++pos;
+      skipSpacesAndBreaks();
+    }
+  };
+  auto skipNumber = [&] {
+    while (pos < n && text[pos] >= '0' && text[pos] <= '9') ++pos;
+  };
+  nextToken();
+  const size_t keywordAt = text.find("OFF", pos);
+  if (keywordAt == std::string::npos) return;
+  pos = keywordAt + 3;  // past the keyword and its prefixes
+  nextToken();
+  nextToken();
+  skipNumber();  // vertices
+  nextToken();
+  skipNumber();  // faces
+  nextToken();
+  skipNumber();  // edges, or whatever number stands there
+  nextToken();
+  std::istringstream body(text.substr(pos));
+  for (unsigned long long v = 0; v < vertices && nextAssimpLine(body, line); ++v) {
   }
   unsigned long long good = 0, bad = 0;
-  while (good < faces && std::getline(in, line)) {
-    std::istringstream words(line);
-    long long count = 0;
-    if (words >> count && count >= 1 && count <= 9)
+  while (good < faces && nextAssimpLine(body, line)) {
+    // strtoul10 after SkipSpaces: digits only ("+3" and "0.3" are bad counts).
+    size_t at = line.find_first_not_of(" \t");
+    unsigned long long count = 0;
+    for (; at < line.size() && line[at] >= '0' && line[at] <= '9' && count < 100; ++at)
+      count = 10 * count + static_cast<unsigned>(line[at] - '0');
+    if (count >= 1 && count <= 9)
       ++good;
     else if (++bad > faces)
       preflightError(name, "more face lines without a vertex count of 1 to 9 than the " +
@@ -497,10 +551,27 @@ void preflightObj(std::istream& in, const std::string& name) {
 
 void preflight(std::istream& in, const std::string& ext, const std::string& name,
                std::uintmax_t size) {
-  if (ext == "off")
-    preflightOff(in, name, size);
-  else if (ext == "ply")
+  // Assimp picks a reader by the extension and, when that reader declines, by the content:
+  // a PLY or OFF text named .glb reaches the PLY or OFF reader all the same
+  // (tests/regressions/mesh/ply_header_named_glb_hangs). So these checks go by content too:
+  // the first token of the first 1 KB, past comment lines.
+  std::string head(1024, '\0');
+  in.read(head.data(), static_cast<std::streamsize>(head.size()));
+  head.resize(static_cast<size_t>(in.gcount()));
+  in.clear();
+  in.seekg(0);
+  std::istringstream lines(head);
+  std::string line, first;
+  while (first.empty() && std::getline(lines, line)) {
+    std::istringstream words(line.substr(0, line.find('#')));
+    words >> first;
+  }
+  const bool plyText = head.rfind("ply", 0) == 0 || head.rfind("PLY", 0) == 0;  // as assimp
+  const bool offText = first.size() >= 3 && first.compare(first.size() - 3, 3, "OFF") == 0;
+  if (ext == "ply" || plyText)
     preflightPly(in, name, size);
+  else if (ext == "off" || offText)
+    preflightOff(in, name, size);
   else if (ext == "obj")
     preflightObj(in, name);
 }
