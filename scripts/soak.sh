@@ -1,8 +1,9 @@
 #!/usr/bin/env bash
 # The full soak (docs/reliability.md): Torus-II at 0.95 T_max under a random storm of
 # forces, torques, pins, drags and edits of stiffness, mass and rest length, for SOAK_CYCLES
-# cycles (default 200000), then a shorter soak under valgrind's leak check. The bounded version of the same test runs in the suite
-# (test_reliability, Soak.*); this script only lengthens it.
+# cycles (default 200000), then a shorter soak under valgrind's leak check. The bounded
+# version of the same test runs in the suite (test_reliability, Soak.*); this script only
+# lengthens it.
 #
 #   scripts/soak.sh
 #

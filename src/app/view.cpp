@@ -7,7 +7,6 @@
 
 namespace zsculpt::app {
 
-
 int affordableLevels(const Mesh& mesh, int wanted, Index maxRefinedVertices) {
   // Doo-Sabin: one vertex per face corner, so level 1 has sum of face sizes vertices and
   // every further level about four times as many (all faces become quads or keep their
@@ -62,12 +61,11 @@ render::Frame& FrameBuilder::build(const Snapshot& snapshot, const ViewSettings&
   f.display.legend = view.colourByProperty;
   if (view.colourByProperty && snapshot.scalar.size() == mesh_.numVertices()) {
     f.scalar.values = &snapshot.scalar;
-    const std::string_view unit = propertyUnit(snapshot.scalarProperty);
-    f.scalar.name = std::string(propertyName(snapshot.scalarProperty));
-    if (!unit.empty()) {
-      f.scalar.name += " (";
-      f.scalar.name += unit;
-      f.scalar.name += ")";
+    // The legend's label is made again only when the property changes: no allocation per
+    // frame.
+    if (!labelled_ || *labelled_ != snapshot.scalarProperty) {
+      f.scalar.name = propertyLabel(snapshot.scalarProperty);
+      labelled_ = snapshot.scalarProperty;
     }
     f.scalar.autoRange = view.autoRange;
     f.scalar.min = view.rangeMin;

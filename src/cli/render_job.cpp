@@ -165,9 +165,7 @@ RenderJobResult runRenderJob(const RenderJobOptions& o) {
       render::propertyAsVertexScalar(sim.model().mesh, sim.model().angles, sim.model().properties,
                                      *property, scalar);
       frame.scalar.values = &scalar;
-      frame.scalar.name = std::string(propertyName(*property));
-      if (const std::string_view unit = propertyUnit(*property); !unit.empty())
-        frame.scalar.name += " (" + std::string(unit) + ")";
+      frame.scalar.name = propertyLabel(*property);
     }
     frame.display.legend = property.has_value();
     frame.camera.target = centreOfMass() + targetOffset;

@@ -20,7 +20,9 @@
 #include <limits>
 #include <memory>
 #include <nlohmann/json.hpp>
+#include <optional>
 #include <sstream>
+#include <string_view>
 #include <unordered_map>
 #include <unordered_set>
 
@@ -396,101 +398,104 @@ void checkDeclaredCount(const std::string& name, std::uintmax_t count, const std
                              ", more than a file of " + std::to_string(size) + " bytes can hold");
 }
 
-// One line as assimp's OFF reader sees it (GetNextLine in ParsingUtils.h): a line ends at
-// any of \r \n \f and a run of them is one break, so there are no empty lines; \0 ends the
-// text; a line holds at most 4096 characters, the rest of a longer one is the next line.
-bool nextAssimpLine(std::istream& in, std::string& line) {
-  constexpr size_t kBufferSize = 4096;
-  auto isBreak = [](int c) { return c == '\r' || c == '\n' || c == '\f'; };
-  line.clear();
-  while (isBreak(in.peek())) in.get();
-  int c = in.peek();
-  if (c == std::char_traits<char>::eof() || c == '\0') return false;
-  while (line.size() < kBufferSize && (c = in.peek()) != std::char_traits<char>::eof() &&
-         c != '\0' && !isBreak(c))
-    line.push_back(static_cast<char>(in.get()));
-  return true;
-}
+// Assimp 5.2's OFF reader, walked over the text as it walks it (OFFLoader.cpp and
+// ParsingUtils.h): tokens skip spaces, line breaks and '#' comment lines; numbers are
+// digits only (strtoul10); a line ends at any of \r \n \f and a run of them is one break,
+// so there are no empty lines; \0 ends the text; a line holds at most 4096 characters.
+class AssimpOffWalk {
+ public:
+  explicit AssimpOffWalk(std::string_view text) : text_(text) {}
+
+  void nextToken() {
+    skipSpacesAndBreaks();
+    while (pos_ < text_.size() && (at() == '#' || at() == '\n' || at() == '\r')) {
+      while (pos_ < text_.size() && at() != '\n' && at() != '\r' && at() != '\0') ++pos_;
+      skipSpacesAndBreaks();
+    }
+  }
+  /// The characters up to the next space, line break or comment.
+  std::string_view word() const {
+    const size_t end = text_.find_first_of(" \t\r\n\f#", pos_);
+    return text_.substr(pos_, (end == std::string_view::npos ? text_.size() : end) - pos_);
+  }
+  void skip(size_t count) { pos_ = std::min(text_.size(), pos_ + count); }
+  /// strtoul10: the digits here (none: nullopt), saturating far above any real count.
+  std::optional<unsigned long long> number() {
+    if (pos_ >= text_.size() || !std::isdigit(static_cast<unsigned char>(at())))
+      return std::nullopt;
+    unsigned long long value = 0;
+    for (; pos_ < text_.size() && std::isdigit(static_cast<unsigned char>(at())); ++pos_)
+      value =
+          std::min<unsigned long long>(10 * value + static_cast<unsigned>(at() - '0'), 1ULL << 62);
+    return value;
+  }
+  /// GetNextLine.
+  bool line(std::string_view& out) {
+    constexpr size_t kBufferSize = 4096;
+    while (pos_ < text_.size() && isBreak(at())) ++pos_;
+    if (pos_ >= text_.size() || at() == '\0') return false;
+    const size_t begin = pos_;
+    while (pos_ < text_.size() && pos_ - begin < kBufferSize && at() != '\0' && !isBreak(at()))
+      ++pos_;
+    out = text_.substr(begin, pos_ - begin);
+    return true;
+  }
+
+ private:
+  static bool isBreak(char c) { return c == '\r' || c == '\n' || c == '\f'; }
+  char at() const { return text_[pos_]; }
+  void skipSpacesAndBreaks() {
+    while (pos_ < text_.size() && (at() == ' ' || at() == '\t' || at() == '\r' || at() == '\n'))
+      ++pos_;
+  }
+  std::string_view text_;
+  size_t pos_ = 0;
+};
 
 void preflightOff(std::istream& in, const std::string& name, std::uintmax_t size) {
   const std::string text{std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>()};
-  std::istringstream header(text);
-  std::string token;
-  std::vector<std::string> tokens;
-  std::string line;
-  // The keyword and the counts, skipping comments; at most a few lines in.
-  for (int lines = 0; tokens.size() < 4 && lines < 64 && std::getline(header, line); ++lines) {
-    line = line.substr(0, line.find('#'));
-    std::istringstream words(line);
-    while (tokens.size() < 4 && words >> token) tokens.push_back(token);
+  AssimpOffWalk walk(text);
+  walk.nextToken();
+  // The keyword is optional: without it the counts come first.
+  const std::string_view keyword = walk.word();
+  if (keyword.empty() || !std::isdigit(static_cast<unsigned char>(keyword[0]))) {
+    if (keyword.size() < 3 || keyword.substr(keyword.size() - 3) != "OFF") return;
+    if (keyword.find('n') != std::string_view::npos || keyword.find('4') != std::string_view::npos)
+      return;
+    walk.skip(keyword.size());
+    walk.nextToken();
+    if (walk.word() == "BINARY") return;
   }
-  if (tokens.size() < 3) return;
-  const std::string& keyword = tokens[0];
-  if (keyword.size() < 3 || keyword.compare(keyword.size() - 3, 3, "OFF") != 0) return;
-  if (keyword.find('n') != std::string::npos || keyword.find('4') != std::string::npos) return;
-  if (tokens[1] == "BINARY") return;
+  const std::optional<unsigned long long> vertices = walk.number();
+  walk.nextToken();
+  const std::optional<unsigned long long> faces = walk.number();
+  if (!vertices || !faces) return;  // not numbers: assimp will say what is wrong
   // An ASCII vertex ("0 0 0\n") or face ("1 0\n") takes at least 4 bytes.
-  unsigned long long vertices = 0, faces = 0;
-  try {
-    vertices = std::stoull(tokens[1]);
-    faces = std::stoull(tokens[2]);
-  } catch (const std::logic_error&) {
-    return;  // not numbers: assimp will say what is wrong
-  }
-  checkDeclaredCount(name, vertices, "vertices", 4, size);
-  checkDeclaredCount(name, faces, "faces", 4, size);
+  checkDeclaredCount(name, *vertices, "vertices", 4, size);
+  checkDeclaredCount(name, *faces, "faces", 4, size);
+  walk.nextToken();
+  (void)walk.number();  // the edge count, or whatever number stands there
+  walk.nextToken();
   // Assimp 5.2 skips a face line whose vertex count is 0, not a number or above 9 by
   // decrementing the mesh's face count without moving on; more such lines than declared
   // faces make that count wrap below zero and the reader crash
   // (tests/regressions/mesh/off_zero_count_face_lines_underflow_segv). Count them as it
-  // would, walking the text as its reader does: the counts are tokens, the edge count is
-  // read even when missing (then the vertex lines start inside the line after the header:
-  // .../off_carriage_return_face_lines_segv), and lines are its lines (nextAssimpLine).
-  // Comment lines count as bad too (the safe side).
-  const size_t n = text.size();
-  size_t pos = 0;
-  auto skipSpacesAndBreaks = [&] {
-    while (pos < n &&
-           (text[pos] == ' ' || text[pos] == '\t' || text[pos] == '\r' || text[pos] == '\n'))
-      ++pos;
-  };
-  auto nextToken = [&] {
-    skipSpacesAndBreaks();
-    while (pos < n && (text[pos] == '#' || text[pos] == '\n' || text[pos] == '\r')) {
-      while (pos < n && text[pos] != '\n' && text[pos] != '\r' && text[pos] != '\0') ++pos;
-      skipSpacesAndBreaks();
-    }
-  };
-  auto skipNumber = [&] {
-    while (pos < n && text[pos] >= '0' && text[pos] <= '9') ++pos;
-  };
-  nextToken();
-  const size_t keywordAt = text.find("OFF", pos);
-  if (keywordAt == std::string::npos) return;
-  pos = keywordAt + 3;  // past the keyword and its prefixes
-  nextToken();
-  nextToken();
-  skipNumber();  // vertices
-  nextToken();
-  skipNumber();  // faces
-  nextToken();
-  skipNumber();  // edges, or whatever number stands there
-  nextToken();
-  std::istringstream body(text.substr(pos));
-  for (unsigned long long v = 0; v < vertices && nextAssimpLine(body, line); ++v) {
+  // would, on its lines: when the header has no edge count, the first vertex's first number
+  // is read as one and the vertex lines start inside that line
+  // (.../off_carriage_return_face_lines_segv). Comment lines count as bad too (the safe side).
+  std::string_view line;
+  for (unsigned long long v = 0; v < *vertices && walk.line(line); ++v) {
   }
   unsigned long long good = 0, bad = 0;
-  while (good < faces && nextAssimpLine(body, line)) {
-    // strtoul10 after SkipSpaces: digits only ("+3" and "0.3" are bad counts).
-    size_t at = line.find_first_not_of(" \t");
-    unsigned long long count = 0;
-    for (; at < line.size() && line[at] >= '0' && line[at] <= '9' && count < 100; ++at)
-      count = 10 * count + static_cast<unsigned>(line[at] - '0');
+  while (good < *faces && walk.line(line)) {
+    AssimpOffWalk face(line);
+    face.nextToken();
+    const unsigned long long count = face.number().value_or(0);
     if (count >= 1 && count <= 9)
       ++good;
-    else if (++bad > faces)
+    else if (++bad > *faces)
       preflightError(name, "more face lines without a vertex count of 1 to 9 than the " +
-                               std::to_string(faces) + " faces the header declares");
+                               std::to_string(*faces) + " faces the header declares");
   }
 }
 

@@ -23,6 +23,13 @@ std::string_view propertyUnit(Property property) {
   return "";
 }
 
+std::string propertyLabel(Property property) {
+  std::string label(propertyName(property));
+  if (const std::string_view unit = propertyUnit(property); !unit.empty())
+    label.append(" (").append(unit).append(")");
+  return label;
+}
+
 std::string_view propertyName(Property property) {
   switch (property) {
     case Property::Mass: return "mass";

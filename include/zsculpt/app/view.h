@@ -57,6 +57,7 @@ class FrameBuilder {
   std::unique_ptr<SubdivisionStencil> stencil_;
   std::uint64_t topologyVersion_ = 0;
   render::Frame frame_;
+  std::optional<Property> labelled_;  // the property frame_.scalar.name is the label of
 };
 
 }  // namespace zsculpt::app
