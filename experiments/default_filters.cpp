@@ -12,6 +12,10 @@
 //   kick-low    phi = 1 - 0.182859 x + 0.0100009 x^2 - 6.29554e-5 x^3 (y = x phi <= 1.7)
 //   drift       phi = 1 - x/12 and the drift r += T psi v, psi = phi / (1 + x phi^2 / 4)
 //   drift-cubic psi = phi (1 - 0.181526 x + 0.0302534 x^2 - 0.00126054 x^3)
+//   pkick, pdrift, pdrift-cubic  the same built on W = (I - P) Omega^2 (I - P), P the
+//               M-orthogonal projector onto the rest shape's affine fields {1, X, Y, Z}
+//               (what --drift-filter runs); TRACE=1 prints L and the conserved
+//               sum r x M Phi^-1 v twenty times a run.
 // with x = T^2 times an eigenvalue of Omega^2. Filters are applied exactly through a dense
 // eigendecomposition (models of a few hundred vertices), so only the filter is measured.
 // Prints energy_drift (mean of the last 10 % of steps over the first 10 %, minus 1), the
@@ -52,12 +56,29 @@ int main(int argc, char** argv) {
   const Eigen::VectorXd inverseSqrtMass = sqrtMass.cwiseInverse();
   const Eigen::MatrixXd s = inverseSqrtMass.asDiagonal() * Eigen::MatrixXd(system.stiffness()) *
                             inverseSqrtMass.asDiagonal();
-  const Eigen::SelfAdjointEigenSolver<Eigen::MatrixXd> eig(s);
+  // Filters prefixed "p" use the stiffness compressed to the complement of the affine
+  // fields of the rest shape, (I - Q) S (I - Q) with Q the orthogonal projector onto
+  // M^1/2 span{1, X, Y, Z}: it vanishes on translations and rotations of the rest shape.
+  const bool projected = filter[0] == 'p';
+  const std::string base = projected ? filter.substr(1) : filter;
+  Eigen::MatrixXd compressed = s;
+  if (projected) {
+    Eigen::MatrixXd affine(n, 4);
+    affine.col(0).setOnes();
+    affine.rightCols(3) = model.mesh.positions();
+    affine = sqrtMass.asDiagonal() * affine;
+    const Eigen::ColPivHouseholderQR<Eigen::MatrixXd> qr(affine);
+    const Eigen::MatrixXd basis = Eigen::MatrixXd(qr.householderQ()).leftCols(qr.rank());
+    const Eigen::MatrixXd complement = Eigen::MatrixXd::Identity(n, n) - basis * basis.transpose();
+    compressed = complement * s * complement;
+  }
+  const Eigen::SelfAdjointEigenSolver<Eigen::MatrixXd> eig(compressed);
   Eigen::VectorXd kick(n), drift(n);
   bool drifts = false;
   for (Index k = 0; k < n; ++k) {
     const double x = std::max(0.0, eig.eigenvalues()[k]) * t * t, p = 1.0 - x / 12.0;
     drift[k] = 1.0;
+    const std::string& filter = base;
     if (filter == "kick")
       kick[k] = p;
     else if (filter == "kick2")
@@ -102,6 +123,17 @@ int main(int argc, char** argv) {
     state.position += t * (drifts ? apply(drift, state.velocity) : state.velocity);
     a = acceleration(state.position);
     state.velocity += (t / 2) * apply(kick, a);
+    if (std::getenv("TRACE") && k % (steps / 20) == 0) {
+      Eigen::VectorXd inverseKick = kick.cwiseInverse();
+      const Points p =
+          system.inverseMass().cwiseInverse().asDiagonal() * apply(inverseKick, state.velocity);
+      Vec3 j = Vec3::Zero();
+      for (Index i = 0; i < n; ++i) j += Vec3(state.position.row(i)).cross(Vec3(p.row(i)));
+      const Diagnostics d = measure(model, state);
+      std::printf("step %ld E/E0 %.4f L %.6f %.6f %.6f J~ %.9f %.9f %.9f\n", k,
+                  d.total() / d0.total(), d.angularMomentum[0], d.angularMomentum[1],
+                  d.angularMomentum[2], j[0], j[1], j[2]);
+    }
     if (k % 10 != 0) continue;
     const Diagnostics d = measure(model, state);
     if (!std::isfinite(d.total()) || d.total() > 1e6 * d0.total()) {

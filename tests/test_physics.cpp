@@ -40,12 +40,13 @@ struct RunResult {
   double maxMomentumDrift = 0.0;  // largest |p - p0|
   double maxAngularDrift = 0.0;   // largest |L - L0| / |L0|
   double meanAngularDrift = 0.0;  // |mean L of last 10 % - L0| / |L0|
-  double angularTrend = 0.0;  // |mean L of last 10 % - mean L of the second 10 %| / |L0|
+  double angularTrend = 0.0;      // |mean L of last 10 % - mean L of the second 10 %| / |L0|
   State state;
 };
 
-RunResult simulate(const Model& model, Scheme scheme, double dt, long steps, State state) {
-  Stepper stepper(model, scheme, dt);
+RunResult simulate(const Model& model, Scheme scheme, double dt, long steps, State state,
+                   const StepperOptions& options = {}) {
+  Stepper stepper(model, scheme, dt, options);
   const Points external = Points::Zero(model.mesh.numVertices(), 3);
   const Diagnostics d0 = measure(model, state);
   RunResult run;
@@ -78,8 +79,9 @@ RunResult simulate(const Model& model, Scheme scheme, double dt, long steps, Sta
     }
     run.maxMomentumDrift = std::max(run.maxMomentumDrift, (d.momentum - d0.momentum).norm());
     if (d0.angularMomentum.norm() > 0)
-      run.maxAngularDrift = std::max(run.maxAngularDrift, (d.angularMomentum - d0.angularMomentum).norm() /
-                                                              d0.angularMomentum.norm());
+      run.maxAngularDrift =
+          std::max(run.maxAngularDrift,
+                   (d.angularMomentum - d0.angularMomentum).norm() / d0.angularMomentum.norm());
   }
   run.energyDrift = (last / lastCount) / (first / firstCount) - 1.0;
   if (d0.angularMomentum.norm() > 0)
@@ -87,7 +89,8 @@ RunResult simulate(const Model& model, Scheme scheme, double dt, long steps, Sta
                            d0.angularMomentum.norm();
   if (d0.angularMomentum.norm() > 0)
     run.angularTrend = (lastL / static_cast<double>(lastCount) -
-                        secondL / static_cast<double>(std::max(secondCount, 1L))).norm() /
+                        secondL / static_cast<double>(std::max(secondCount, 1L)))
+                           .norm() /
                        d0.angularMomentum.norm();
   run.state = state;
   return run;
@@ -112,8 +115,9 @@ TEST(Forces, RadialSpringIsMinusGradientOfItsEnergy) {
     Vec3 p = ri, m = ri, dummy;
     p[c] += h;
     m[c] -= h;
-    const double grad = (radialSpringForce(p, rj, 3.0, 0.7, dummy) -
-                         radialSpringForce(m, rj, 3.0, 0.7, dummy)) / (2 * h);
+    const double grad =
+        (radialSpringForce(p, rj, 3.0, 0.7, dummy) - radialSpringForce(m, rj, 3.0, 0.7, dummy)) /
+        (2 * h);
     EXPECT_NEAR(f[c], -grad, 1e-7);
   }
 }
@@ -145,13 +149,17 @@ TEST(Forces, ACrushedSpringKeepsItsStiffnessWithinKappaAndStaysConservative) {
       Vec3 p = ri, m = ri, fp, fm;
       p[c] += h;
       m[c] -= h;
-      const double grad = (radialSpringForce(p, rj, kappa, rest, fp) -
-                           radialSpringForce(m, rj, kappa, rest, fm)) / (2 * h);
+      const double grad =
+          (radialSpringForce(p, rj, kappa, rest, fp) - radialSpringForce(m, rj, kappa, rest, fm)) /
+          (2 * h);
       EXPECT_NEAR(f[c], -grad, 1e-6) << l;
       jacobian.col(c) = (fp - fm) / (2 * h);
     }
-    const double largest = Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d>(
-                               0.5 * (jacobian + jacobian.transpose())).eigenvalues().cwiseAbs().maxCoeff();
+    const double largest =
+        Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d>(0.5 * (jacobian + jacobian.transpose()))
+            .eigenvalues()
+            .cwiseAbs()
+            .maxCoeff();
     EXPECT_LE(largest, kappa * (1.0 + 1e-6)) << l;
   }
   // At zero length: no force, no NaN.
@@ -180,7 +188,8 @@ TEST(Forces, AngleSpringIsMinusGradientWithZeroNetForceAndTorque) {
     p[k] += h;
     m[k] -= h;
     const double grad = (angleSpringForce(c, p, b, kappa, rest, x, y, z) -
-                         angleSpringForce(c, m, b, kappa, rest, x, y, z)) / (2 * h);
+                         angleSpringForce(c, m, b, kappa, rest, x, y, z)) /
+                        (2 * h);
     EXPECT_NEAR(fa[k], -grad, 1e-6);
   }
 }
@@ -244,7 +253,8 @@ TEST(Forces, InternalForcesOfAModelHaveZeroNetForceAndTorque) {
   }
   EXPECT_LT(net.norm(), 1e-11);
   EXPECT_LT(moment.norm(), 1e-10);
-  EXPECT_NEAR(e.total(), potentialEnergy(model, x).radial + potentialEnergy(model, x).angular, 1e-12);
+  EXPECT_NEAR(e.total(), potentialEnergy(model, x).radial + potentialEnergy(model, x).angular,
+              1e-12);
 }
 
 // ---- matrices and the critical period ----------------------------------------------------
@@ -289,11 +299,13 @@ TEST(Matrices, TransformationMatricesApproximateTheTrigonometricOnes) {
   const Eigen::MatrixXd o2 = Eigen::MatrixXd(m.omega2());
   // Dense exact H'' = cos(Omega T) via the symmetric eigendecomposition.
   const VectorX s = m.inverseMass().cwiseSqrt();
-  Eigen::SelfAdjointEigenSolver<Eigen::MatrixXd> eig(s.asDiagonal() * Eigen::MatrixXd(m.stiffness()) * s.asDiagonal());
+  Eigen::SelfAdjointEigenSolver<Eigen::MatrixXd> eig(
+      s.asDiagonal() * Eigen::MatrixXd(m.stiffness()) * s.asDiagonal());
   VectorX c(eig.eigenvalues().size());
-  for (Index k = 0; k < c.size(); ++k) c[k] = std::cos(std::sqrt(std::max(0.0, eig.eigenvalues()[k])) * t);
-  const Eigen::MatrixXd cosine = s.cwiseInverse().asDiagonal() * eig.eigenvectors() * c.asDiagonal() *
-                                 eig.eigenvectors().transpose() * s.asDiagonal();
+  for (Index k = 0; k < c.size(); ++k)
+    c[k] = std::cos(std::sqrt(std::max(0.0, eig.eigenvalues()[k])) * t);
+  const Eigen::MatrixXd cosine = s.cwiseInverse().asDiagonal() * eig.eigenvectors() *
+                                 c.asDiagonal() * eig.eigenvectors().transpose() * s.asDiagonal();
   const double error = (Eigen::MatrixXd(tm.hSecond()) - cosine).cwiseAbs().maxCoeff();
   // Truncation after Omega^4: the first dropped term is (omega T)^6 / 720.
   const double lambda = eig.eigenvalues().maxCoeff();
@@ -357,7 +369,8 @@ TEST(Schemes, LinearMomentumIsExactForEveryScheme) {
     State s0 = perturbed(model, 0.1, 5);
     s0.velocity.rowwise() += Eigen::RowVector3d(0.3, -0.1, 0.2);  // a drift to keep
     const double p0 = measure(model, s0).momentum.norm();
-    const RunResult run = simulate(model, scheme, scheme == Scheme::SymplecticEuler ? dt / 2 : dt, 400, s0);
+    const RunResult run =
+        simulate(model, scheme, scheme == Scheme::SymplecticEuler ? dt / 2 : dt, 400, s0);
     EXPECT_TRUE(run.finite) << schemeName(scheme);
     EXPECT_LT(run.maxMomentumDrift, 1e-12 * p0 * 1e2) << schemeName(scheme);
   }
@@ -366,7 +379,8 @@ TEST(Schemes, LinearMomentumIsExactForEveryScheme) {
 TEST(Schemes, RestShapeIsAnEquilibriumOfTheDefaultScheme) {
   Model model = withAngles(makeTorus(), 0.5);
   State s = State::atRest(model.mesh);
-  const RunResult run = simulate(model, Scheme::Default, 0.9 * criticalPeriod(SystemMatrices(model)), 200, s);
+  const RunResult run =
+      simulate(model, Scheme::Default, 0.9 * criticalPeriod(SystemMatrices(model)), 200, s);
   EXPECT_LT((run.state.position - model.mesh.positions()).cwiseAbs().maxCoeff(), 1e-12);
   EXPECT_LT(run.state.velocity.cwiseAbs().maxCoeff(), 1e-12);
 }
@@ -437,12 +451,81 @@ TEST_P(DefaultSchemeLongRun, ASpinningModelKeepsSpinning) {
 INSTANTIATE_TEST_SUITE_P(PaperModels, DefaultSchemeLongRun,
                          ::testing::Values("dodecahedron", "torus", "grid"));
 
+// The drift filter (StepperOptions::driftFilter, docs/solver.md section 6) on the paper's
+// models braced with angle springs, where the kick filter alone misses "energy within 1 %
+// at 0.9 T_max" (by up to 3 %).
+Model bracedModel(const std::string& name) {
+  if (name == "dodecahedron") return withAngles(makeDodecahedron(), 0.5, 0.5, 5.0);
+  if (name == "torus") return withAngles(makeTorus(), 0.5, 0.1, 5.0);
+  return withAngles(makeGrid(), 0.5, 0.31, 5.16);
+}
+
+StepperOptions driftFiltered() {
+  StepperOptions o;
+  o.driftFilter = true;
+  return o;
+}
+
+class DriftFilterLongRun : public ::testing::TestWithParam<const char*> {};
+
+TEST_P(DriftFilterLongRun, EnergyStaysWithinOnePercentAtNinetyPercentOfTmax) {
+  const Model model = bracedModel(GetParam());
+  const double dt = 0.9 * criticalPeriod(SystemMatrices(model));
+  const RunResult run =
+      simulate(model, Scheme::Default, dt, 100000, perturbed(model, 0.1, 11), driftFiltered());
+  EXPECT_TRUE(run.finite);
+  EXPECT_LT(std::abs(run.energyDrift), 0.01) << GetParam();
+  // Linear momentum stays exact: W's columns, weighted by the masses, sum to zero.
+  EXPECT_LT(run.maxMomentumDrift, 1e-12) << GetParam();
+}
+
+TEST_P(DriftFilterLongRun, AngularMomentumStaysWhereItStarted) {
+  // The step is symplectic and commutes with rotations, so it conserves sum r x M Phi^-1 v
+  // exactly; with W vanishing on the rest shape's rotations that differs from L only by
+  // products of the deformation with the velocity.
+  const Model model = bracedModel(GetParam());
+  const double dt = 0.9 * criticalPeriod(SystemMatrices(model));
+  const RunResult run =
+      simulate(model, Scheme::Default, dt, 40000, perturbed(model, 0.05, 3), driftFiltered());
+  EXPECT_TRUE(run.finite);
+  EXPECT_LT(run.angularTrend, 0.002) << GetParam();
+  // Measured (seed 3): torus 0.0020 against 0.036 with the kick filter alone, grid 0.0011
+  // against 0.011. The dodecahedron's 20 vertices deform by a large part of their size, so
+  // there the difference r - r_rest is not small and L wanders as much either way
+  // (0.016 against 0.018).
+  if (std::string(GetParam()) != "dodecahedron")
+    EXPECT_LT(run.maxAngularDrift, 0.005) << GetParam();
+  else
+    EXPECT_LT(run.maxAngularDrift, 0.03);
+}
+
+INSTANTIATE_TEST_SUITE_P(PaperModels, DriftFilterLongRun,
+                         ::testing::Values("dodecahedron", "torus", "grid"));
+
+TEST(Schemes, DriftFilterLeavesUnbracedModelsAndTheRestShapeAlone) {
+  // Without angle springs at every vertex the option changes nothing, bit for bit.
+  const Model floppy = withAngles(makeDodecahedron(), 0.0);
+  const double dt = 0.9 * criticalPeriod(SystemMatrices(floppy));
+  const RunResult plain = simulate(floppy, Scheme::Default, dt, 500, perturbed(floppy, 0.1, 2));
+  const RunResult option =
+      simulate(floppy, Scheme::Default, dt, 500, perturbed(floppy, 0.1, 2), driftFiltered());
+  EXPECT_TRUE(((plain.state.position - option.state.position).array() == 0.0).all());
+  // Braced, the rest shape is still an equilibrium (both filters act on zero).
+  const Model braced = bracedModel("torus");
+  const RunResult rest =
+      simulate(braced, Scheme::Default, 0.9 * criticalPeriod(SystemMatrices(braced)), 200,
+               State::atRest(braced.mesh), driftFiltered());
+  EXPECT_LT((rest.state.position - braced.mesh.positions()).cwiseAbs().maxCoeff(), 1e-12);
+  EXPECT_LT(rest.state.velocity.cwiseAbs().maxCoeff(), 1e-12);
+}
+
 TEST(Schemes, DefaultDivergesJustAboveTheTightPeriodAndNotBelow) {
   const Model model = dodecahedron();
   const SystemMatrices m(model);
   const double tmax = criticalPeriod(m);
   auto diverges = [&](double ratio) {
-    const RunResult r = simulate(model, Scheme::Default, ratio * tmax, 3000, perturbed(model, 0.05, 13));
+    const RunResult r =
+        simulate(model, Scheme::Default, ratio * tmax, 3000, perturbed(model, 0.05, 13));
     return !r.finite || r.state.velocity.cwiseAbs().maxCoeff() > 1e3;
   };
   EXPECT_FALSE(diverges(1.0));

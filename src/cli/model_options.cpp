@@ -11,8 +11,8 @@
 namespace zsculpt::cli {
 
 void ModelOptions::addTo(CLI::App* app, bool sourceOptional) {
-  auto* positional = app->add_option("model", source,
-                                     "MESH (a file assimp reads, or builtin:NAME) or SCENE (.json)");
+  auto* positional = app->add_option(
+      "model", source, "MESH (a file assimp reads, or builtin:NAME) or SCENE (.json)");
   if (!sourceOptional) positional->required();
   app->add_option("--mass", mass, "mass per vertex, kg (default 0.5)");
   app->add_option("--damping", damping, "damping per vertex, kg/s (default 0)");
@@ -55,8 +55,7 @@ LoadedModel ModelOptions::load() const {
   flag(angularStiffness, u.angularStiffness, Property::AngularStiffness, "--angular-stiffness");
   flag(rigidity, u.rigidity, Property::Rigidity, "--rigidity");
   if (stiffnessCap) {
-    if (!(*stiffnessCap > 0.0))
-      throw InvalidInputError("--stiffness-cap: must be positive");
+    if (!(*stiffnessCap > 0.0)) throw InvalidInputError("--stiffness-cap: must be positive");
     u.stiffnessCap = *stiffnessCap;
   }
   if (restLengthScale) {
@@ -78,7 +77,8 @@ void RunOptions::addTo(CLI::App* app) {
   app->add_option("--scheme", scheme,
                   "default | paper | exact | symplectic-euler | implicit-euler");
   auto* dtOption = app->add_option("--dt", dt, "time step, seconds");
-  app->add_option("--dt-ratio", dtRatio, "time step as a fraction of equation 5's T_max (default 0.5)")
+  app->add_option("--dt-ratio", dtRatio,
+                  "time step as a fraction of equation 5's T_max (default 0.5)")
       ->excludes(dtOption);
   auto* stepsOption = app->add_option("--steps", steps, "number of steps (default 1000)");
   app->add_option("--time", time, "simulated time, seconds")->excludes(stepsOption);
@@ -96,6 +96,9 @@ void RunOptions::addTo(CLI::App* app) {
                   "repeatable)");
   app->add_flag("--allow-unstable", allowUnstable,
                 "run even above the scheme's stable limit (to watch it diverge)");
+  app->add_flag("--drift-filter", driftFilter,
+                "default scheme on braced models: filter the drift too (docs/solver.md, "
+                "section 6)");
   app->add_flag("--json", json, "a JSON summary on standard output");
 }
 
@@ -183,7 +186,8 @@ RunOptions::Resolved RunOptions::resolve(const LoadedModel& loaded) const {
     period = 0.01;
   }
   if (!(period > 0.0))
-    throw InvalidInputError(std::string(dt ? "--dt" : "--dt-ratio") + ": the time step must be positive");
+    throw InvalidInputError(std::string(dt ? "--dt" : "--dt-ratio") +
+                            ": the time step must be positive");
   // Refuse a step above the scheme's stable limit. The Gerschgorin bound is cheap and never
   // above the tight one, so the eigenvalue is computed only when the step exceeds it.
   const double cheapLimit =
@@ -193,14 +197,15 @@ RunOptions::Resolved RunOptions::resolve(const LoadedModel& loaded) const {
     if (period > limit) {
       std::ostringstream msg;
       msg.precision(6);
-      msg << (dt ? "--dt" : "--dt-ratio") << ": time step " << period << " s ("
-          << period / r.tMax << " T_max) is above the stable limit " << limit << " s ("
-          << limit / r.tMax << " T_max) of scheme " << schemeName(r.settings.scheme)
+      msg << (dt ? "--dt" : "--dt-ratio") << ": time step " << period << " s (" << period / r.tMax
+          << " T_max) is above the stable limit " << limit << " s (" << limit / r.tMax
+          << " T_max) of scheme " << schemeName(r.settings.scheme)
           << "; pass --allow-unstable to run it anyway";
       throw InvalidInputError(msg.str());
     }
   }
   r.settings.period = period;
+  r.settings.stepper.driftFilter = driftFilter;
   if (steps) {
     r.steps = *steps;
   } else if (time) {
@@ -222,8 +227,8 @@ void RunOptions::prepare(const LoadedModel& loaded, Simulation& sim) const {
   if (!(amplitude >= 0.0) || !std::isfinite(amplitude))
     throw InvalidInputError("--perturb: must be a finite number >= 0");
   if (amplitude > 0.0) {
-    const unsigned s = seed ? *seed
-                            : (loaded.scene ? static_cast<unsigned>(loaded.scene->simulation.seed) : 0u);
+    const unsigned s =
+        seed ? *seed : (loaded.scene ? static_cast<unsigned>(loaded.scene->simulation.seed) : 0u);
     Points kick;
     randomVelocity(loaded.model.properties.mass, amplitude, s, kick);
     state.velocity += kick;

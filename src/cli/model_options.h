@@ -45,6 +45,7 @@ struct RunOptions {
   std::vector<std::string> forces, torques;
   std::vector<std::string> pins, pinNormals;
   bool allowUnstable = false;
+  bool driftFilter = false;
   bool json = false;
 
   void addTo(CLI::App* app);

@@ -71,26 +71,32 @@ void StepResponse::buildElastic(const Stepper& stepper, const Model& model,
     const double m = p.mass[l];
     return m / (m + t * p.damping[l] + t2 * entry(system.stiffness(), l, l));
   };
+  VectorX column;
   for (Index b = 0; b < s; ++b) {
     const Index l = support[static_cast<size_t>(b)];
     const double scale = sigma(l) * inverseMass[l];
+    if (stepper.scheme() == Scheme::Default) column = stepper.filteredPositionColumn(l);
     for (Index a = 0; a < s; ++a) {
       const Index j = support[static_cast<size_t>(a)];
       const double delta = (a == b) ? 1.0 : 0.0;
       double c = 0.0;
       switch (stepper.scheme()) {
         case Scheme::Default:
-          // r' = r + T v + T^2/2 Phi a, Phi = 1 - T^2 Omega^2 / 12 (the damping half step
-          // acts on v before the kick, not on the kick).
-          c = 0.5 * t2 * (delta - t2 / 12.0 * entry(o2, j, l));
+          // r' = r + T Psi (v + (T/2) Phi a) (the damping half step acts on v before the
+          // kick, not on the kick).
+          c = 0.5 * t2 * column[j];
           break;
         case Scheme::Paper:
         case Scheme::Exact:  // the Taylor H of equation 3 approximates the exact one
           c = 0.5 * t2 * delta - t2 * t2 / 24.0 * entry(o2, j, l) +
-                t2 * t2 * t2 / 720.0 * omega4(j, l);
+              t2 * t2 * t2 / 720.0 * omega4(j, l);
           break;
-        case Scheme::SymplecticEuler: c = delta * t2 * std::exp(-2.0 * g[j] * t); break;
-        case Scheme::ImplicitEuler: c = delta * t2 * implicitFactor(l); break;
+        case Scheme::SymplecticEuler:
+          c = delta * t2 * std::exp(-2.0 * g[j] * t);
+          break;
+        case Scheme::ImplicitEuler:
+          c = delta * t2 * implicitFactor(l);
+          break;
       }
       elastic_(a, b) = c * scale;
     }
@@ -187,7 +193,8 @@ void ConstraintSolver::setUp(const Mesh& mesh, const ConstraintSet& constraints)
   supportEnd_.setZero(s, 3);
   points_.reserve(largestPlane);
   const Index residuals = 3 * static_cast<Index>(pins_.size() + planes_.size());
-  const Index unknownCount = 3 * static_cast<Index>(pins_.size()) + 2 * static_cast<Index>(planes_.size());
+  const Index unknownCount =
+      3 * static_cast<Index>(pins_.size()) + 2 * static_cast<Index>(planes_.size());
   jacobian_.setZero(residuals, unknownCount);
   factor_ = Eigen::CompleteOrthogonalDecomposition<Eigen::MatrixXd>(residuals, unknownCount);
   for (VectorX* v : {&rhs_, &shifted_}) v->setZero(residuals);
@@ -200,7 +207,8 @@ Index ConstraintSolver::local(Index vertex) const {
 }
 
 void ConstraintSolver::gatherSupport(const Points& all, Points& out) const {
-  for (size_t a = 0; a < support_.size(); ++a) out.row(static_cast<Index>(a)) = all.row(support_[a]);
+  for (size_t a = 0; a < support_.size(); ++a)
+    out.row(static_cast<Index>(a)) = all.row(support_[a]);
 }
 
 void ConstraintSolver::beginStep(const Mesh& mesh, const ConstraintSet& constraints,
@@ -241,8 +249,10 @@ void ConstraintSolver::beginStep(const Mesh& mesh, const ConstraintSet& constrai
     }
     gatherSupport(position, supportEnd_);
     const Vec3 current = planeNormal(plane, supportEnd_);
-    if (reference.squaredNorm() > 0.0) plane.hint = current.dot(reference) < 0.0 ? -current : current;
-    else if (current.squaredNorm() > 0.0) plane.hint = current;
+    if (reference.squaredNorm() > 0.0)
+      plane.hint = current.dot(reference) < 0.0 ? -current : current;
+    else if (current.squaredNorm() > 0.0)
+      plane.hint = current;
   }
   // Warm start: last cycle's unknowns, with this cycle's arms.
   assembleForces();
@@ -284,7 +294,8 @@ void ConstraintSolver::assembleForces() {
   for (size_t q = 0; q < planes_.size(); ++q) {
     const Plane& plane = planes_[q];
     for (size_t k = 0; k < plane.locals.size(); ++k)
-      coupleForces_.row(plane.locals[k]) += (plane.mass[k] * couple_[q].cross(plane.arm[k])).transpose();
+      coupleForces_.row(plane.locals[k]) +=
+          (plane.mass[k] * couple_[q].cross(plane.arm[k])).transpose();
   }
   forces_ = coupleForces_;
   for (size_t k = 0; k < pins_.size(); ++k) forces_.row(pins_[k].local) += pinForce_[k].transpose();
@@ -424,7 +435,8 @@ void ConstraintSolver::velocityCorrection(const ConstraintSet& constraints, doub
   // would push the plane's vertices outwards; take it back.
   for (size_t a = 0; a < support_.size(); ++a) {
     const Index v = support_[a];
-    delta.row(static_cast<Index>(a)) = (-0.5 * t * sigma(v) / mass[v]) * coupleForces_.row(static_cast<Index>(a));
+    delta.row(static_cast<Index>(a)) =
+        (-0.5 * t * sigma(v) / mass[v]) * coupleForces_.row(static_cast<Index>(a));
   }
   auto current = [&](Index l) -> Vec3 {
     return (velocity.row(support_[static_cast<size_t>(l)]) + delta.row(l)).transpose();

@@ -10,8 +10,9 @@
 //
 //   elastic   r_e = r_e0 + C (f - f0): every scheme's position update is affine in the
 //             forces held over the step; C is exact for default (T^2/2 (1 - T^2/12 Omega^2)
-//             sigma M^-1), paper (H sigma M^-1) and symplectic-euler, a first-order model for
-//             exact and implicit-euler;
+//             sigma M^-1, or T^2/2 Psi Phi sigma M^-1 with the drift filter, a column per
+//             support vertex from Stepper::filteredPositionColumn), paper (H sigma M^-1) and
+//             symplectic-euler, a first-order model for exact and implicit-euler;
 //   rigid     the same Newton-Euler drift and composition the cycle runs (rigid module),
 //             evaluated exactly.
 //
