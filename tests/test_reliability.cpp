@@ -413,6 +413,7 @@ struct SoakOptions {
   double dragSpeed = 0.05;        // m/s, the RMS speed of a dragged target
   double angularStiffness = 0.0;  // N m/rad^2 (Table 1's Torus-II has none)
   double damping = 0.0;           // kg/s; with damping the energy only has an upper bound
+  bool driftFilter = false;       // StepperOptions::driftFilter (braced models only)
   std::string kinds = "force,torque,pin,drag,stiffness,mass,rest-length";  // of the storm
 };
 
@@ -575,6 +576,7 @@ SoakLog soak(const SoakOptions& o) {
   Model model = Model::fromMesh(makeBuiltin("builtin:torus:40:40"), values);
   SimulationSettings settings;
   settings.period = o.dtRatio * criticalPeriod(SystemMatrices(model));
+  settings.stepper.driftFilter = o.driftFilter;
   Simulation sim(std::move(model), settings);
   std::mt19937_64 rng(o.seed);
   SoakLog log;
@@ -667,6 +669,7 @@ TEST(Soak, TorusTwoAtNinetyFivePercentOfTMaxUnderAStormOfLoadsPinsDragsAndEdits)
   if (const char* a = std::getenv("ZSCULPT_SOAK_ANGULAR")) o.angularStiffness = std::atof(a);
   if (const char* k = std::getenv("ZSCULPT_SOAK_KINDS")) o.kinds = k;
   if (const char* d = std::getenv("ZSCULPT_SOAK_DAMPING")) o.damping = std::atof(d);
+  if (const char* f = std::getenv("ZSCULPT_SOAK_DRIFT_FILTER")) o.driftFilter = std::atoi(f) != 0;
   const auto start = std::chrono::steady_clock::now();
   const SoakLog log = soak(o);
   const double wall =

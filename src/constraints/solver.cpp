@@ -75,16 +75,19 @@ void StepResponse::buildElastic(const Stepper& stepper, const Model& model,
   for (Index b = 0; b < s; ++b) {
     const Index l = support[static_cast<size_t>(b)];
     const double scale = sigma(l) * inverseMass[l];
-    if (stepper.scheme() == Scheme::Default) column = stepper.filteredPositionColumn(l);
+    // With the drift filter the response is global (the projection sums over the model).
+    const bool filtered = stepper.scheme() == Scheme::Default && stepper.filtersDrift();
+    if (filtered) column = stepper.filteredPositionColumn(l);
     for (Index a = 0; a < s; ++a) {
       const Index j = support[static_cast<size_t>(a)];
       const double delta = (a == b) ? 1.0 : 0.0;
       double c = 0.0;
       switch (stepper.scheme()) {
         case Scheme::Default:
-          // r' = r + T Psi (v + (T/2) Phi a) (the damping half step acts on v before the
+          // r' = r + T Psi (v + (T/2) Phi a), Psi = I without the drift filter, Phi = 1 - T^2
+          // Omega^2 / 12 or its W form (the damping half step acts on v before the
           // kick, not on the kick).
-          c = 0.5 * t2 * column[j];
+          c = filtered ? 0.5 * t2 * column[j] : 0.5 * t2 * (delta - t2 / 12.0 * entry(o2, j, l));
           break;
         case Scheme::Paper:
         case Scheme::Exact:  // the Taylor H of equation 3 approximates the exact one

@@ -106,6 +106,11 @@ bool rowsAreZero(const Points& x, Index begin, Index end) {
   return bits == 0;
 }
 
+// Models up to this many vertices keep their accelerations in an array for the filter's
+// product (it stays in cache); larger ones make them on the fly from the forces, saving
+// the array's memory traffic. The values are the same either way.
+constexpr Index kStoredAccelerationVertices = 65536;
+
 }  // namespace
 
 int automaticThreads(Index vertices) {
@@ -142,7 +147,7 @@ Stepper::Stepper(const Model& model, Scheme scheme, double period, const Stepper
     p->setZero(n, 3);
   if (scheme_ == Scheme::Paper || scheme_ == Scheme::Exact)
     for (Points* p : {&work1_, &work2_, &work3_, &work4_}) p->setZero(n, 3);
-  if (scheme_ == Scheme::Default) {
+  if (scheme_ == Scheme::Default && options_.driftFilter) {
     for (Points* p : {&work1_, &work2_}) p->setZero(n, 3);
     affinePartial_.assign(24 * static_cast<size_t>(forces_.numBlocks()), 0.0);
     setUpAffine({});
@@ -177,7 +182,8 @@ void Stepper::propertiesChanged(std::span<const Index> vertices) {
   system_.updateVertices(model_, vertices);
   if (transformation_) transformation_->updateVertices(system_, vertices);
   if (scheme_ == Scheme::Exact) setUpExact();
-  if (scheme_ == Scheme::Default && !vertices.empty()) setUpAffine(vertices);
+  if (scheme_ == Scheme::Default && options_.driftFilter && !vertices.empty())
+    setUpAffine(vertices);
   forces_.propertiesChanged(model_, vertices);
   if (!vertices.empty()) refreshDamping(vertices);
   cacheValid_ = false;
@@ -189,7 +195,7 @@ void Stepper::rebuild() {
   if (transformation_) *transformation_ = TransformationMatrices(system_, period_);
   if (scheme_ == Scheme::Exact) setUpExact();
   forces_.rebuild(model_);
-  if (scheme_ == Scheme::Default) {
+  if (scheme_ == Scheme::Default && options_.driftFilter) {
     affinePartial_.assign(24 * static_cast<size_t>(forces_.numBlocks()), 0.0);
     setUpAffine({});
   }
@@ -248,7 +254,10 @@ void Stepper::step(State& state, const Points& external, std::span<const double>
   if (tuning_) threads_ = tuner_.next();
   switch (scheme_) {
     case Scheme::Default:
-      stepDefault(state, external, share);
+      if (filtersDrift())
+        stepDriftFiltered(state, external, share);
+      else
+        stepDefault(state, external, share);
       break;
     case Scheme::Paper:
       stepPaper(state, external, share);
@@ -398,25 +407,24 @@ void Stepper::setUpAffine(std::span<const Index> vertices) {
 VectorX Stepper::filteredPositionColumn(Index l) const {
   ZSCULPT_ASSERT(scheme_ == Scheme::Default, "filteredPositionColumn is for the default scheme");
   const double t2 = period_ * period_;
+  VectorX unit = VectorX::Zero(model_.mesh.numVertices());
+  unit[l] = 1.0;
+  if (!filtersDrift()) return unit - (t2 / 12.0) * (system_.omega2() * unit);
   const VectorX& mass = model_.properties.mass;
-  // W u = Omega^2 u - (Omega^2 B) c - B d, as in stepDefault.
+  // W u = Omega^2 u - (Omega^2 B) c - B d, as in stepDriftFiltered.
   auto apply = [&](const VectorX& u) {
     Eigen::Vector4d bu = Eigen::Vector4d::Zero(), ku = Eigen::Vector4d::Zero();
     for (Index i = 0; i < u.size(); ++i) {
       bu += mass[i] * u[i] * affineBasis_.row(i).transpose();
       ku += mass[i] * u[i] * omegaBasis_.row(i).transpose();
     }
-    VectorX w = system_.omega2() * u;
-    if (!(braced_ && options_.driftFilter)) return w;
     const Eigen::Vector4d c = affineInverseGram_ * bu;
     const Eigen::Vector4d d = affineInverseGram_ * (ku - affineStiffness_ * c);
+    VectorX w = system_.omega2() * u;
     w -= omegaBasis_ * c + affineBasis_ * d;
     return w;
   };
-  VectorX unit = VectorX::Zero(model_.mesh.numVertices());
-  unit[l] = 1.0;
   const VectorX phi = unit - (t2 / 12.0) * apply(unit);
-  if (!(braced_ && options_.driftFilter)) return phi;
   VectorX w = kDriftA3 * phi + kDriftA4 * t2 * apply(phi);
   w = kDriftA2 * phi + t2 * apply(w);
   w = kDriftA1 * phi + t2 * apply(w);
@@ -424,8 +432,176 @@ VectorX Stepper::filteredPositionColumn(Index l) const {
 }
 
 void Stepper::stepDefault(State& s, const Points& external, std::span<const double> share) {
+  // Velocity Verlet with the filtered acceleration Phi a, Phi = I - T^2 Omega^2 / 12, and
+  // the damping of G exactly over two half steps (stepper.h):
+  //   v <- e^{-GT} v + (T/2) Phi a(r);  r <- r + T v;  v <- e^{-GT} (v + (T/2) Phi a(r)).
+  // Passes over the blocks: external forces checked for zero; kick and drift; internal
+  // forces (ForceKernel's two phases); kick and damping. The accelerations are made on the
+  // fly inside the filter's product (a_j = sigma_j M_j^-1 ((F_j + F_ext,j) + mu_j g), the
+  // same expression as accelerationRows) instead of being stored and read back. The first
+  // kick equals the last step's second one while nothing but the position changed (same
+  // internal forces, zero external forces, no share): it is kept in kick_.
+  const double t = period_, half = 0.5 * t, filter = t * t * t / 24.0;
+  const Index blocks = forces_.numBlocks();
+  const bool startCached = cacheValid_;
+  const bool reuseCandidate = cacheValid_ && kickValid_ && share.empty();
+  const SparseRowMatrix& o2 = system_.omega2();
+  const Index* outer = o2.outerIndexPtr();
+  const Index* inner = o2.innerIndexPtr();
+  const double* value = o2.valuePtr();
+  const double* inverseMass = system_.inverseMass().data();
+  const double* mass = model_.properties.mass.data();
+  const Vec3 g = model_.properties.gravity;
+  const bool gravity = !g.isZero();
+  const double* e = external.data();
+  double* r = s.position.data();
+  double* v = s.velocity.data();
+  double* kick = kick_.data();
+  const bool stored = model_.mesh.numVertices() <= kStoredAccelerationVertices;
+  bool externalZero = true;
+#pragma omp parallel num_threads(threads_) if (threads_ > 1)
+  {
+#pragma omp for schedule(static)
+    for (Index b = 0; b < blocks; ++b)
+      externalZero_[static_cast<size_t>(b)] =
+          rowsAreZero(external, forces_.blockBegin(b), forces_.blockEnd(b)) ? 1 : 0;
+    bool zero = true;
+    for (Index b = 0; b < blocks; ++b) zero = zero && externalZero_[static_cast<size_t>(b)];
+    const bool reuse = reuseCandidate && zero;
+    // a_j from the internal forces f, as accelerationRows makes it (and the total force),
+    // and (T/2) Phi a at row i: (T/2) a_i - (T^3/24) (Omega^2 a)_i. Specialised on whether
+    // there are loads, gravity and an elastic share, so that the common case is a tight loop.
+    auto withCase = [&](auto&& body) {
+      auto s3 = [&](auto l, auto g3) {
+        share.empty() ? body(l, g3, std::false_type{}) : body(l, g3, std::true_type{});
+      };
+      auto s2 = [&](auto l) { gravity ? s3(l, std::true_type{}) : s3(l, std::false_type{}); };
+      zero ? s2(std::false_type{}) : s2(std::true_type{});
+    };
+    auto acceleration = [&](auto loads, auto withGravity, auto withShare, const double* f, Index j,
+                            double a[3], double* sum) {
+      const size_t k = 3 * static_cast<size_t>(j);
+      double x = f[k], y = f[k + 1], z = f[k + 2];
+      if constexpr (decltype(loads)::value) {
+        x += e[k];
+        y += e[k + 1];
+        z += e[k + 2];
+      }
+      if constexpr (decltype(withGravity)::value) {
+        x += mass[j] * g.x();
+        y += mass[j] * g.y();
+        z += mass[j] * g.z();
+      }
+      if (sum) {
+        sum[0] = x;
+        sum[1] = y;
+        sum[2] = z;
+      }
+      double scale = inverseMass[j];
+      if constexpr (decltype(withShare)::value) scale = share[static_cast<size_t>(j)] * scale;
+      a[0] = scale * x;
+      a[1] = scale * y;
+      a[2] = scale * z;
+    };
+    auto filteredKick = [&](auto loads, auto withGravity, auto withShare, const double* f, Index i,
+                            double* out, double* total) {
+      double wx = 0.0, wy = 0.0, wz = 0.0;
+      for (Index p = outer[i]; p < outer[i + 1]; ++p) {
+        double a[3];
+        acceleration(loads, withGravity, withShare, f, inner[p], a, nullptr);
+        wx += value[p] * a[0];
+        wy += value[p] * a[1];
+        wz += value[p] * a[2];
+      }
+      double a[3];
+      acceleration(loads, withGravity, withShare, f, i, a, total);
+      out[0] = half * a[0] - filter * wx;
+      out[1] = half * a[1] - filter * wy;
+      out[2] = half * a[2] - filter * wz;
+    };
+    // The same from stored accelerations.
+    auto storedKick = [&](Index i, double* out) {
+      const double* a = acceleration_.data();
+      double wx = 0.0, wy = 0.0, wz = 0.0;
+      for (Index p = outer[i]; p < outer[i + 1]; ++p) {
+        const double* aj = a + 3 * static_cast<size_t>(inner[p]);
+        wx += value[p] * aj[0];
+        wy += value[p] * aj[1];
+        wz += value[p] * aj[2];
+      }
+      const double* ai = a + 3 * static_cast<size_t>(i);
+      out[0] = half * ai[0] - filter * wx;
+      out[1] = half * ai[1] - filter * wy;
+      out[2] = half * ai[2] - filter * wz;
+    };
+    if (!reuse && !startCached) {
+      forces_.scatter(model_, s.position, internal_);
+#pragma omp for schedule(static)
+      for (Index b = 0; b < blocks; ++b) forces_.gatherBlock(b, internal_);
+    }
+    // Kick and drift; with loads, the total force at the start on the way (lastTotalForce).
+    const double* f0 = internal_.data();
+    double* total = zero ? nullptr : totalForce_.data();
+    withCase([&](auto loads, auto withGravity, auto withShare) {
+#pragma omp for schedule(static)
+      for (Index b = 0; b < blocks; ++b)
+        for (Index i = forces_.blockBegin(b); i < forces_.blockEnd(b); ++i) {
+          const size_t k = 3 * static_cast<size_t>(i);
+          if (!reuse)
+            filteredKick(loads, withGravity, withShare, f0, i, kick + k,
+                         total ? total + k : nullptr);
+          const double damp = dampHalf_[i];
+          for (int d = 0; d < 3; ++d) {
+            v[k + d] = v[k + d] * damp + kick[k + d];
+            r[k + d] += t * v[k + d];
+          }
+        }
+    });
+    // Internal forces at the new position.
+    forces_.scatter(model_, s.position, previousInternal_);
+    const double* f1 = previousInternal_.data();
+    if (stored) {
+      withCase([&](auto loads, auto withGravity, auto withShare) {
+#pragma omp for schedule(static)
+        for (Index b = 0; b < blocks; ++b) {
+          forces_.gatherBlock(b, previousInternal_);
+          for (Index i = forces_.blockBegin(b); i < forces_.blockEnd(b); ++i)
+            acceleration(loads, withGravity, withShare, f1, i,
+                         acceleration_.data() + 3 * static_cast<size_t>(i), nullptr);
+        }
+      });
+    } else {
+#pragma omp for schedule(static)
+      for (Index b = 0; b < blocks; ++b) forces_.gatherBlock(b, previousInternal_);
+    }
+    // Second kick and damping.
+    withCase([&](auto loads, auto withGravity, auto withShare) {
+#pragma omp for schedule(static)
+      for (Index b = 0; b < blocks; ++b)
+        for (Index i = forces_.blockBegin(b); i < forces_.blockEnd(b); ++i) {
+          const size_t k = 3 * static_cast<size_t>(i);
+          if (stored)
+            storedKick(i, kick + k);
+          else
+            filteredKick(loads, withGravity, withShare, f1, i, kick + k, nullptr);
+          const double damp = dampHalf_[i];
+          for (int d = 0; d < 3; ++d) v[k + d] = (v[k + d] + kick[k + d]) * damp;
+        }
+    });
+#pragma omp single
+    externalZero = zero;
+  }
+  // previousInternal_ now holds the forces at the new position: swap the two buffers. The
+  // total force at the start was written with loads, else it is made on demand.
+  internal_.swap(previousInternal_);
+  totalForceReady_ = !externalZero;
+  cacheValid_ = true;
+  kickValid_ = share.empty() && externalZero;
+}
+
+void Stepper::stepDriftFiltered(State& s, const Points& external, std::span<const double> share) {
   // Velocity Verlet with both half kicks and the drift filtered (stepper.h, docs/solver.md
-  // section 4), the damping of G exact over two half steps:
+  // section 6), the damping of G exact over two half steps:
   //   v <- e^{-GT} v + (T/2) Phi a(r);  r <- r + T Psi v;  v <- e^{-GT} (v + (T/2) Phi a(r)),
   //   Phi = I - T^2 W / 12,  Psi = Phi (I + c1 T^2 W + c2 T^4 W^2 + c3 T^6 W^3),
   // W = (I - P) Omega^2 (I - P) the stiffness seen from outside the affine fields of the
@@ -458,8 +634,6 @@ void Stepper::stepDefault(State& s, const Points& external, std::span<const doub
   double* w2 = work2_.data();
   double* partial = affinePartial_.data();
   double* coefficient = affineCoefficient_.data();  // c (4 x 3) then d (4 x 3)
-  // Without angle springs everywhere (a mechanism) the kick alone, with W = Omega^2.
-  const bool braced = braced_ && options_.driftFilter;
   bool externalZero = true;
 #pragma omp parallel num_threads(threads_) if (threads_ > 1)
   {
@@ -532,8 +706,7 @@ void Stepper::stepDefault(State& s, const Points& external, std::span<const doub
               ku(q, d) += p[12 + 3 * q + d];
             }
         }
-        Eigen::Matrix<double, 4, 3> c = affineInverseGram_ * bu;
-        if (!braced) c.setZero(), ku.setZero();
+        const Eigen::Matrix<double, 4, 3> c = affineInverseGram_ * bu;
         const Eigen::Matrix<double, 4, 3> d = affineInverseGram_ * (ku - affineStiffness_ * c);
         for (int q = 0; q < 4; ++q)
           for (int k = 0; k < 3; ++k) {
@@ -545,7 +718,6 @@ void Stepper::stepDefault(State& s, const Points& external, std::span<const doub
     // (W u)_i with the coefficients of u.
     auto product = [&](const double* u, Index i, double out[3]) {
       rowProduct(o2, u, i, out);
-      if (!braced) return;
       for (int q = 0; q < 4; ++q) {
         const double ob = omegaBasis[i + q * omegaBasis_.rows()];
         const double bq = basis[i + q * affineBasis_.rows()];
@@ -564,10 +736,10 @@ void Stepper::stepDefault(State& s, const Points& external, std::span<const doub
             const size_t k = 3 * static_cast<size_t>(i);
             acceleration(loads, withGravity, withShare, f, i, acc + k, total ? total + k : nullptr);
           }
-          if (braced) sumBlock(b, acc);
+          sumBlock(b, acc);
         }
       });
-      if (braced) combine();
+      combine();
 #pragma omp for schedule(static)
       for (Index b = 0; b < blocks; ++b)
         for (Index i = forces_.blockBegin(b); i < forces_.blockEnd(b); ++i) {
@@ -585,7 +757,7 @@ void Stepper::stepDefault(State& s, const Points& external, std::span<const doub
       }
       filteredKick(internal_.data(), zero ? nullptr : totalForce_.data());
     }
-    // First kick and damping; unbraced, the plain drift with it.
+    // First kick and damping.
 #pragma omp for schedule(static)
     for (Index b = 0; b < blocks; ++b) {
       for (Index i = forces_.blockBegin(b); i < forces_.blockEnd(b); ++i) {
@@ -593,10 +765,9 @@ void Stepper::stepDefault(State& s, const Points& external, std::span<const doub
         const double damp = dampHalf_[i];
         for (int d = 0; d < 3; ++d) {
           v[k + d] = v[k + d] * damp + kick[k + d];
-          if (!braced) r[k + d] += t * v[k + d];
         }
       }
-      if (braced) sumBlock(b, v);
+      sumBlock(b, v);
     }
     // The drift, Psi v by Horner: w1 = a3 v + a4 T^2 W v; w2 = a2 v + T^2 W w1;
     // w1 = a1 v + T^2 W w2; r += T (v + T^2 W w1).
@@ -627,7 +798,7 @@ void Stepper::stepDefault(State& s, const Points& external, std::span<const doub
           for (int d = 0; d < 3; ++d) r[k + d] += t * (v[k + d] + t2 * w[d]);
         }
     };
-    if (braced) drift();
+    drift();
     // Internal forces at the new position, the second kick and damping.
     forces_.scatter(model_, s.position, previousInternal_);
     filteredKick(previousInternal_.data(), nullptr);

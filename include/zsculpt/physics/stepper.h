@@ -114,6 +114,9 @@ class Stepper {
   }
   /// Total force (internal + external + gravity) at the start of the last step.
   [[nodiscard]] const Points& lastTotalForce() const;
+  /// Default scheme: whether the drift is filtered (StepperOptions::driftFilter on a model
+  /// braced by angle springs at every vertex).
+  [[nodiscard]] bool filtersDrift() const { return braced_ && options_.driftFilter; }
   /// Default scheme: column l of the filter product Psi Phi (the end-of-step position moves
   /// by (T^2/2) sigma_l / mu_l times it per unit force held on vertex l), N long. Not for the
   /// per-step path: it allocates.
@@ -133,6 +136,8 @@ class Stepper {
                            std::span<const double> elasticShare);
   void refreshDamping(std::span<const Index> vertices);
   void stepDefault(State& s, const Points& external, std::span<const double> share);
+  // The default scheme with StepperOptions::driftFilter on a braced model.
+  void stepDriftFiltered(State& s, const Points& external, std::span<const double> share);
   void stepPaper(State& s, const Points& external, std::span<const double> share);
   void stepExact(State& s, const Points& external, std::span<const double> share);
   void stepSymplecticEuler(State& s, const Points& external, std::span<const double> share);
