@@ -106,6 +106,55 @@ bool rowsAreZero(const Points& x, Index begin, Index end) {
   return bits == 0;
 }
 
+// The acceleration of one vertex as accelerationRows makes it, a_j = sigma_j M_j^-1
+// ((F_j + F_ext,j) + mu_j g), specialised on whether there are loads, gravity and an elastic
+// share (std::bool_constant flags, chosen once per pass by withLoadCase), so that the common
+// case is a tight loop. `sum`, when given, receives the total force.
+struct AccelerationInputs {
+  const double* external;
+  const double* mass;
+  const double* inverseMass;
+  std::span<const double> share;
+  Vec3 gravity;
+};
+
+template <class Loads, class Gravity, class Share>
+inline void accelerationRow(const AccelerationInputs& in, Loads, Gravity, Share, const double* f,
+                            Index j, double a[3], double* sum) {
+  const size_t k = 3 * static_cast<size_t>(j);
+  double x = f[k], y = f[k + 1], z = f[k + 2];
+  if constexpr (Loads::value) {
+    x += in.external[k];
+    y += in.external[k + 1];
+    z += in.external[k + 2];
+  }
+  if constexpr (Gravity::value) {
+    x += in.mass[j] * in.gravity.x();
+    y += in.mass[j] * in.gravity.y();
+    z += in.mass[j] * in.gravity.z();
+  }
+  if (sum) {
+    sum[0] = x;
+    sum[1] = y;
+    sum[2] = z;
+  }
+  double scale = in.inverseMass[j];
+  if constexpr (Share::value) scale = in.share[static_cast<size_t>(j)] * scale;
+  a[0] = scale * x;
+  a[1] = scale * y;
+  a[2] = scale * z;
+}
+
+// Calls body(loads, gravity, share) with each flag as a std::bool_constant.
+template <class Body>
+inline void withLoadCase(bool loads, bool gravity, bool share, Body&& body) {
+  auto s3 = [&](auto l, auto g3) {
+    share ? body(l, g3, std::true_type{}) : body(l, g3, std::false_type{});
+  };
+  auto s2 = [&](auto l) { gravity ? s3(l, std::true_type{}) : s3(l, std::false_type{}); };
+  loads ? s2(std::true_type{}) : s2(std::false_type{});
+}
+
 // Models up to this many vertices keep their accelerations in an array for the filter's
 // product (it stays in cache); larger ones make them on the fly from the forces, saving
 // the array's memory traffic. The values are the same either way.
@@ -405,11 +454,11 @@ void Stepper::setUpAffine(std::span<const Index> vertices) {
 }
 
 VectorX Stepper::filteredPositionColumn(Index l) const {
-  ZSCULPT_ASSERT(scheme_ == Scheme::Default, "filteredPositionColumn is for the default scheme");
+  ZSCULPT_ASSERT(scheme_ == Scheme::Default && filtersDrift(),
+                 "filteredPositionColumn is for the default scheme with its drift filter");
   const double t2 = period_ * period_;
   VectorX unit = VectorX::Zero(model_.mesh.numVertices());
   unit[l] = 1.0;
-  if (!filtersDrift()) return unit - (t2 / 12.0) * (system_.omega2() * unit);
   const VectorX& mass = model_.properties.mass;
   // W u = Omega^2 u - (Omega^2 B) c - B d, as in stepDriftFiltered.
   auto apply = [&](const VectorX& u) {
@@ -429,6 +478,18 @@ VectorX Stepper::filteredPositionColumn(Index l) const {
   w = kDriftA2 * phi + t2 * apply(w);
   w = kDriftA1 * phi + t2 * apply(w);
   return phi + t2 * apply(w);
+}
+
+bool Stepper::markZeroExternalBlocks(const Points& external) {
+  // Inside the step's parallel region: every thread returns the same answer.
+  const Index blocks = forces_.numBlocks();
+#pragma omp for schedule(static)
+  for (Index b = 0; b < blocks; ++b)
+    externalZero_[static_cast<size_t>(b)] =
+        rowsAreZero(external, forces_.blockBegin(b), forces_.blockEnd(b)) ? 1 : 0;
+  bool zero = true;
+  for (Index b = 0; b < blocks; ++b) zero = zero && externalZero_[static_cast<size_t>(b)];
+  return zero;
 }
 
 void Stepper::stepDefault(State& s, const Points& external, std::span<const double> share) {
@@ -461,47 +522,15 @@ void Stepper::stepDefault(State& s, const Points& external, std::span<const doub
   bool externalZero = true;
 #pragma omp parallel num_threads(threads_) if (threads_ > 1)
   {
-#pragma omp for schedule(static)
-    for (Index b = 0; b < blocks; ++b)
-      externalZero_[static_cast<size_t>(b)] =
-          rowsAreZero(external, forces_.blockBegin(b), forces_.blockEnd(b)) ? 1 : 0;
-    bool zero = true;
-    for (Index b = 0; b < blocks; ++b) zero = zero && externalZero_[static_cast<size_t>(b)];
+    const bool zero = markZeroExternalBlocks(external);
     const bool reuse = reuseCandidate && zero;
-    // a_j from the internal forces f, as accelerationRows makes it (and the total force),
-    // and (T/2) Phi a at row i: (T/2) a_i - (T^3/24) (Omega^2 a)_i. Specialised on whether
-    // there are loads, gravity and an elastic share, so that the common case is a tight loop.
-    auto withCase = [&](auto&& body) {
-      auto s3 = [&](auto l, auto g3) {
-        share.empty() ? body(l, g3, std::false_type{}) : body(l, g3, std::true_type{});
-      };
-      auto s2 = [&](auto l) { gravity ? s3(l, std::true_type{}) : s3(l, std::false_type{}); };
-      zero ? s2(std::false_type{}) : s2(std::true_type{});
-    };
+    // (T/2) Phi a at row i: (T/2) a_i - (T^3/24) (Omega^2 a)_i, with a_j from the internal
+    // forces f (and the total force on the way).
+    const AccelerationInputs inputs{e, mass, inverseMass, share, g};
+    auto withCase = [&](auto&& body) { withLoadCase(!zero, gravity, !share.empty(), body); };
     auto acceleration = [&](auto loads, auto withGravity, auto withShare, const double* f, Index j,
                             double a[3], double* sum) {
-      const size_t k = 3 * static_cast<size_t>(j);
-      double x = f[k], y = f[k + 1], z = f[k + 2];
-      if constexpr (decltype(loads)::value) {
-        x += e[k];
-        y += e[k + 1];
-        z += e[k + 2];
-      }
-      if constexpr (decltype(withGravity)::value) {
-        x += mass[j] * g.x();
-        y += mass[j] * g.y();
-        z += mass[j] * g.z();
-      }
-      if (sum) {
-        sum[0] = x;
-        sum[1] = y;
-        sum[2] = z;
-      }
-      double scale = inverseMass[j];
-      if constexpr (decltype(withShare)::value) scale = share[static_cast<size_t>(j)] * scale;
-      a[0] = scale * x;
-      a[1] = scale * y;
-      a[2] = scale * z;
+      accelerationRow(inputs, loads, withGravity, withShare, f, j, a, sum);
     };
     auto filteredKick = [&](auto loads, auto withGravity, auto withShare, const double* f, Index i,
                             double* out, double* total) {
@@ -637,45 +666,15 @@ void Stepper::stepDriftFiltered(State& s, const Points& external, std::span<cons
   bool externalZero = true;
 #pragma omp parallel num_threads(threads_) if (threads_ > 1)
   {
-#pragma omp for schedule(static)
-    for (Index b = 0; b < blocks; ++b)
-      externalZero_[static_cast<size_t>(b)] =
-          rowsAreZero(external, forces_.blockBegin(b), forces_.blockEnd(b)) ? 1 : 0;
-    bool zero = true;
-    for (Index b = 0; b < blocks; ++b) zero = zero && externalZero_[static_cast<size_t>(b)];
+    const bool zero = markZeroExternalBlocks(external);
     const bool reuse = reuseCandidate && zero;
-    auto withCase = [&](auto&& body) {
-      auto s3 = [&](auto l, auto g3) {
-        share.empty() ? body(l, g3, std::false_type{}) : body(l, g3, std::true_type{});
-      };
-      auto s2 = [&](auto l) { gravity ? s3(l, std::true_type{}) : s3(l, std::false_type{}); };
-      zero ? s2(std::false_type{}) : s2(std::true_type{});
-    };
-    // a_i = sigma_i M_i^-1 ((F_i + F_ext,i) + mu_i g), as accelerationRows makes it.
-    auto acceleration = [&](auto loads, auto withGravity, auto withShare, const double* f, Index i,
-                            double* a, double* sum) {
-      const size_t k = 3 * static_cast<size_t>(i);
-      double x = f[k], y = f[k + 1], z = f[k + 2];
-      if constexpr (decltype(loads)::value) {
-        x += e[k];
-        y += e[k + 1];
-        z += e[k + 2];
-      }
-      if constexpr (decltype(withGravity)::value) {
-        x += mass[i] * g.x();
-        y += mass[i] * g.y();
-        z += mass[i] * g.z();
-      }
-      if (sum) {
-        sum[0] = x;
-        sum[1] = y;
-        sum[2] = z;
-      }
-      double scale = inverseMass[i];
-      if constexpr (decltype(withShare)::value) scale = share[static_cast<size_t>(i)] * scale;
-      a[0] = scale * x;
-      a[1] = scale * y;
-      a[2] = scale * z;
+    // (T/2) Phi a at row i: (T/2) a_i - (T^3/24) (Omega^2 a)_i, with a_j from the internal
+    // forces f (and the total force on the way).
+    const AccelerationInputs inputs{e, mass, inverseMass, share, g};
+    auto withCase = [&](auto&& body) { withLoadCase(!zero, gravity, !share.empty(), body); };
+    auto acceleration = [&](auto loads, auto withGravity, auto withShare, const double* f, Index j,
+                            double a[3], double* sum) {
+      accelerationRow(inputs, loads, withGravity, withShare, f, j, a, sum);
     };
     // Block b's share of B^T M u and (Omega^2 B)^T M u (24 numbers).
     auto sumBlock = [&](Index b, const double* u) {

@@ -117,9 +117,9 @@ class Stepper {
   /// Default scheme: whether the drift is filtered (StepperOptions::driftFilter on a model
   /// braced by angle springs at every vertex).
   [[nodiscard]] bool filtersDrift() const { return braced_ && options_.driftFilter; }
-  /// Default scheme: column l of the filter product Psi Phi (the end-of-step position moves
-  /// by (T^2/2) sigma_l / mu_l times it per unit force held on vertex l), N long. Not for the
-  /// per-step path: it allocates.
+  /// Default scheme with filtersDrift(): column l of the filter product Psi Phi (the end-of-step
+  /// position moves by (T^2/2) sigma_l / mu_l times it per unit force held on vertex l), N long.
+  /// Not for the per-step path: it allocates.
   [[nodiscard]] VectorX filteredPositionColumn(Index l) const;
   /// Threads the last step used.
   [[nodiscard]] int threads() const { return threads_; }
@@ -135,6 +135,9 @@ class Stepper {
   void computeAcceleration(const Points& position, const Points& external,
                            std::span<const double> elasticShare);
   void refreshDamping(std::span<const Index> vertices);
+  // Inside the step's parallel region: marks externalZero_ per block and returns whether all
+  // of the external forces are zero.
+  bool markZeroExternalBlocks(const Points& external);
   void stepDefault(State& s, const Points& external, std::span<const double> share);
   // The default scheme with StepperOptions::driftFilter on a braced model.
   void stepDriftFiltered(State& s, const Points& external, std::span<const double> share);
