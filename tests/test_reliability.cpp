@@ -413,7 +413,7 @@ struct SoakOptions {
   double dragSpeed = 0.05;        // m/s, the RMS speed of a dragged target
   double angularStiffness = 0.0;  // N m/rad^2 (Table 1's Torus-II has none)
   double damping = 0.0;           // kg/s; with damping the energy only has an upper bound
-  bool driftFilter = false;       // StepperOptions::driftFilter (braced models only)
+  bool driftFilter = true;        // StepperOptions::driftFilter (braced models only)
   std::string kinds = "force,torque,pin,drag,stiffness,mass,rest-length";  // of the storm
 };
 

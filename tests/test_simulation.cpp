@@ -403,48 +403,57 @@ TEST(SemiRigid, BodyFrameKeepsTheLongRunEnergyOfSpinningSemiRigidModelsBetterTha
   // whether the deformation velocities turn with the body over a cycle (Body, the default)
   // or stay in the world frame (World). energy_drift as cli.md defines it (mean of the last
   // 10 % of steps over the first 10 %, minus 1) of spinning semi-rigid models with a random
-  // kick, at 0.9 T_max. The full sweep is in docs/semi-rigid-and-constraints.md.
+  // kick, at 0.9 T_max. With the kick filter alone the frame decides it (body within 1 %,
+  // world up to 3 %); the drift filter (on by default for these braced models) commutes
+  // with rotations, so there both frames stay within 1 % and the body frame within 1 % is
+  // what is asserted. The full sweep is in docs/semi-rigid-and-constraints.md.
   struct Case {
     bool dodecahedron;
     double chi, spin;
   };
-  double worst[2] = {0.0, 0.0};
-  for (const Case& c : {Case{false, 0.3, 0.5}, Case{false, 0.5, 2.0}, Case{true, 0.9, 0.5}}) {
-    ModelSpec spec;
-    spec.mass = 0.1;
-    spec.angular = 0.05;
-    spec.rigidity = c.chi;
-    const Model model = makeModel(c.dodecahedron ? makeDodecahedron() : makeTorus(10, 10), spec);
-    int i = 0;
-    for (RigidFrame frame : {RigidFrame::Body, RigidFrame::World}) {
-      SimulationSettings settings = settingsFor(model, 0.9);
-      settings.rigidFrame = frame;
-      Simulation sim(model, settings);
-      State start = State::atRest(model.mesh);
-      spinVelocity(model.properties.mass, start.position, c.spin * Vec3(0.3, 0.2, 1.0),
-                   start.velocity);
-      Points kick;
-      randomVelocity(model.properties.mass, 0.05, 5, kick);
-      start.velocity += kick;
-      sim.setState(start);
-      constexpr int n = 20000;
-      double first = 0.0, last = 0.0;
-      for (int k = 0; k < n; ++k) {
-        sim.step();
-        const double e = sim.diagnostics().total();
-        ASSERT_TRUE(std::isfinite(e));
-        if (k < n / 10) first += e;
-        if (k >= n - n / 10) last += e;
+  for (bool driftFilter : {false, true}) {
+    double worst[2] = {0.0, 0.0};
+    for (const Case& c : {Case{false, 0.3, 0.5}, Case{false, 0.5, 2.0}, Case{true, 0.9, 0.5}}) {
+      ModelSpec spec;
+      spec.mass = 0.1;
+      spec.angular = 0.05;
+      spec.rigidity = c.chi;
+      const Model model = makeModel(c.dodecahedron ? makeDodecahedron() : makeTorus(10, 10), spec);
+      int i = 0;
+      for (RigidFrame frame : {RigidFrame::Body, RigidFrame::World}) {
+        SimulationSettings settings = settingsFor(model, 0.9);
+        settings.rigidFrame = frame;
+        settings.stepper.driftFilter = driftFilter;
+        Simulation sim(model, settings);
+        State start = State::atRest(model.mesh);
+        spinVelocity(model.properties.mass, start.position, c.spin * Vec3(0.3, 0.2, 1.0),
+                     start.velocity);
+        Points kick;
+        randomVelocity(model.properties.mass, 0.05, 5, kick);
+        start.velocity += kick;
+        sim.setState(start);
+        constexpr int n = 20000;
+        double first = 0.0, last = 0.0;
+        for (int k = 0; k < n; ++k) {
+          sim.step();
+          const double e = sim.diagnostics().total();
+          ASSERT_TRUE(std::isfinite(e));
+          if (k < n / 10) first += e;
+          if (k >= n - n / 10) last += e;
+        }
+        const double drift = last / first - 1.0;
+        std::cout << (driftFilter ? "drift filter, " : "kick filter, ")
+                  << (c.dodecahedron ? "dodecahedron" : "Torus-I") << " chi " << c.chi << " spin "
+                  << c.spin << (i == 0 ? ": body " : ": world ") << drift << "\n";
+        worst[i] = std::max(worst[i], std::abs(drift));
+        ++i;
       }
-      const double drift = last / first - 1.0;
-      std::cout << (c.dodecahedron ? "dodecahedron" : "Torus-I") << " chi " << c.chi << " spin "
-                << c.spin << (i == 0 ? ": body " : ": world ") << drift << "\n";
-      worst[i] = std::max(worst[i], std::abs(drift));
-      ++i;
+    }
+    EXPECT_LT(worst[0], 0.01) << driftFilter;
+    if (!driftFilter) {
+      EXPECT_LT(worst[0], 0.5 * worst[1]);
     }
   }
-  EXPECT_LT(worst[0], 0.01);
-  EXPECT_LT(worst[0], 0.5 * worst[1]);
 }
 
 TEST(SemiRigid, SetStateKeepsOnlyTheRigidPartOfAFullyRigidModel) {
@@ -574,9 +583,15 @@ TEST(Constraints, TheirWorkIsTheEnergyTheyPutIn) {
   // soak counts) plus the scheme's own energy error, which is second order in T. A drag pulls
   // a corner out and back, another corner pinned; the largest gap between the energy gained
   // and the work falls fourfold when T halves, so nothing else is missing from the work.
+  // Both forms of the default scheme: the kick filter alone at 0.3 and 0.15 T_max, and with
+  // the drift filter (on for this braced grid) at a quarter of those periods, because its
+  // error is larger (docs/solver.md section 6: the energy this drag puts in is 7.7 %, 2.3 %
+  // and 0.7 % above the kick filter's converged value at 0.3, 0.15 and 0.075 T_max).
   const Model model = makeModel(makeGrid(6), ModelSpec{.angular = 0.2});
-  auto run = [&](double ratio) {
-    Simulation sim(model, settingsFor(model, ratio));
+  auto run = [&](double ratio, bool driftFilter) {
+    SimulationSettings settings = settingsFor(model, ratio);
+    settings.stepper.driftFilter = driftFilter;
+    Simulation sim(model, settings);
     sim.addPositionConstraint(35);
     const Index drag = sim.addPositionConstraint(0);
     const Vec3 origin = model.mesh.positions().row(0).transpose();
@@ -594,12 +609,18 @@ TEST(Constraints, TheirWorkIsTheEnergyTheyPutIn) {
     }
     return std::pair{largest, gap};
   };
-  const auto [energy, gap] = run(0.3);
-  const auto [energyHalf, gapHalf] = run(0.15);
-  EXPECT_GT(energy, 0.1);  // the drag did put energy in
-  EXPECT_NEAR(energyHalf, energy, 0.01 * energy);
-  EXPECT_LT(gap, 0.03 * energy);
-  EXPECT_LT(gapHalf, 0.3 * gap) << "gap " << gap << " at 0.3 T_max, " << gapHalf << " at 0.15";
+  for (bool driftFilter : {false, true}) {
+    const double ratio = driftFilter ? 0.075 : 0.3;
+    const auto [energy, gap] = run(ratio, driftFilter);
+    const auto [energyHalf, gapHalf] = run(ratio / 2, driftFilter);
+    std::cout << (driftFilter ? "drift filter" : "kick filter") << ": energy " << energy << " / "
+              << energyHalf << ", gap " << gap << " / " << gapHalf << " at " << ratio << " / "
+              << ratio / 2 << " T_max\n";
+    EXPECT_GT(energy, 0.1);  // the drag did put energy in
+    EXPECT_NEAR(energyHalf, energy, 0.01 * energy) << driftFilter;
+    EXPECT_LT(gap, 0.03 * energy) << driftFilter;
+    EXPECT_LT(gapHalf, 0.3 * gap) << driftFilter;
+  }
 }
 
 TEST(Constraints, PinsHoldOnAFullyRigidBody) {

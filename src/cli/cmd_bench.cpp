@@ -93,6 +93,7 @@ struct Options {
   int threads = 0;
   bool json = false, table1 = false, scaling = false, roofline = false, peers = false;
   bool quick = false;
+  bool driftFilter = true;  // StepperOptions::driftFilter (the default scheme on braced models)
 };
 
 struct ModelBench {
@@ -150,12 +151,17 @@ double compulsoryBytes(const Model& model, const Stepper& stepper) {
   bytes += 2 * 24 * n;                      // internal forces written, read
   bytes += 2 * 24 * n;                      // acceleration written, read
   bytes += 2 * 24 * n;                      // kick written, read (next step)
+  if (stepper.filtersDrift()) {
+    // Four more products with W (docs/solver.md section 6), each: the vector read, the
+    // result written, Omega^2, B and Omega^2 B read; the velocity summed once more.
+    bytes += 4 * (2 * 24 * n + nnz * 12 + 4 * n + 64 * n) + 24 * n;
+  }
   return bytes;
 }
 
 ModelBench benchModel(const std::string& name, const std::function<Model()>& build,
                       Scheme scheme, double dtRatio, int threads, long steps, double budget,
-                      bool serialToo, bool transformationToo) {
+                      bool serialToo, bool transformationToo, bool driftFilter) {
   ModelBench b;
   b.name = name;
   b.scheme = std::string(schemeName(scheme));
@@ -170,6 +176,7 @@ ModelBench benchModel(const std::string& name, const std::function<Model()>& bui
   b.period = dtRatio * (std::isfinite(tMax) ? tMax : 0.02);
   StepperOptions options;
   options.threads = threads;
+  options.driftFilter = driftFilter;
   auto stepper = std::make_unique<Stepper>(model, scheme, b.period, options);
   b.threads = stepper->threads();
   State state = State::atRest(mesh);
@@ -186,7 +193,7 @@ ModelBench benchModel(const std::string& name, const std::function<Model()>& bui
   b.bytesPerStep = compulsoryBytes(model, *stepper);
   stepper.reset();
   if (serialToo) {
-    StepperOptions one;
+    StepperOptions one = options;
     one.threads = 1;
     Stepper serial(model, scheme, b.period, one);
     b.stepSerial = timeSteps(serial, state, external, steps, budget, nullptr).first;
@@ -307,9 +314,11 @@ std::string runTable1(const Options& o) {
     };
     const double budget = o.quick ? 0.05 : 0.5;
     const ModelBench paper =
-        benchModel(row.name, build, Scheme::Paper, 0.5, o.threads, o.steps, budget, false, true);
+        benchModel(row.name, build, Scheme::Paper, 0.5, o.threads, o.steps, budget, false, true,
+                   o.driftFilter);
     const ModelBench ours =
-        benchModel(row.name, build, Scheme::Default, 0.5, o.threads, o.steps, budget, false, false);
+        benchModel(row.name, build, Scheme::Default, 0.5, o.threads, o.steps, budget, false, false,
+                   o.driftFilter);
     // The paper's Init: Omega^2, Omega^4, H, H', H'' (section 6), i.e. both matrix sets.
     const double init = paper.systemMatrices + paper.transformation;
     if (o.json) {
@@ -362,7 +371,7 @@ std::vector<ModelBench> runScaling(const Options& o, std::ostringstream& json) {
     const std::string name = "torus " + std::to_string(u) + "x" + std::to_string(u);
     auto build = [=]() { return uniformModel(makeTorus(u, u), mass, stiffness, angular); };
     const ModelBench b = benchModel(name, build, schemeFromName(o.scheme), o.dtRatio, o.threads,
-                                    o.steps, o.quick ? 0.2 : 2.0, true, false);
+                                    o.steps, o.quick ? 0.2 : 2.0, true, false, o.driftFilter);
     rows.push_back(b);
     if (!o.json) printModelRow(b);
     json << modelJson(b, "    ") << (k + 1 < sides.size() ? ",\n" : "\n");
@@ -422,7 +431,7 @@ std::string runRoofline(const Options& o) {
   auto build = [=]() { return uniformModel(makeTorus(side, side), 0.01, 9.5, angular); };
   const ModelBench b = benchModel("torus " + std::to_string(side) + "x" + std::to_string(side),
                                   build, Scheme::Default, o.dtRatio, o.threads, o.steps,
-                                  o.quick ? 0.2 : 3.0, false, false);
+                                  o.quick ? 0.2 : 3.0, false, false, o.driftFilter);
   const double effective = b.bytesPerStep / b.step;
   if (!o.json) {
     std::cout << "Roofline: triad " << std::setprecision(4) << triad / 1e9 << " GB/s with "
@@ -456,10 +465,12 @@ struct Trajectory {
 // Simulates `horizon` seconds at period interval / k from `start`, sampling the positions
 // every `interval` seconds.
 Trajectory simulateTrajectory(const Model& model, Scheme scheme, const State& start,
-                              double interval, long k, double horizon, int threads) {
+                              double interval, long k, double horizon, int threads,
+                              bool driftFilter) {
   Trajectory t;
   StepperOptions options;
   options.threads = threads;
+  options.driftFilter = driftFilter;
   const double period = interval / static_cast<double>(k);
   Stepper stepper(model, scheme, period, options);
   State s = start;
@@ -514,9 +525,11 @@ std::vector<PeerResult> runPeersOn(const std::string& name, const Model& model,
   const long kRef = static_cast<long>(
       std::ceil(interval / (stablePeriodLimit(Scheme::Default, lambda) / 16.0)));
   const Trajectory coarse =
-      simulateTrajectory(model, Scheme::Default, start, interval, kRef, horizon, o.threads);
+      simulateTrajectory(model, Scheme::Default, start, interval, kRef, horizon, o.threads,
+                         o.driftFilter);
   const Trajectory reference =
-      simulateTrajectory(model, Scheme::Default, start, interval, 2 * kRef, horizon, o.threads);
+      simulateTrajectory(model, Scheme::Default, start, interval, 2 * kRef, horizon, o.threads,
+                         o.driftFilter);
   const double referenceError = trajectoryError(coarse, reference, rest);
   if (!o.json)
     std::cout << name << " (" << model.mesh.numVertices() << " vertices, T_max " << tMax
@@ -540,7 +553,8 @@ std::vector<PeerResult> runPeersOn(const std::string& name, const Model& model,
     long pass = 0, fail = 0;
     Trajectory best;
     auto attempt = [&](long kk) {
-      const Trajectory t = simulateTrajectory(model, scheme, start, interval, kk, horizon, o.threads);
+      const Trajectory t = simulateTrajectory(model, scheme, start, interval, kk, horizon, o.threads,
+                         o.driftFilter);
       spent += t.seconds;
       perStep = t.seconds / static_cast<double>(std::max(1L, t.steps));
       const double e = trajectoryError(t, reference, rest);
@@ -673,7 +687,8 @@ int runBench(const Options& o) {
     else
       build = [&o]() { return o.model.load().model; };
     const ModelBench b = benchModel(name, build, scheme, o.dtRatio, o.threads, o.steps,
-                                    o.quick ? 0.2 : 2.0, true, scheme == Scheme::Paper);
+                                    o.quick ? 0.2 : 2.0, true, scheme == Scheme::Paper,
+                                    o.driftFilter);
     if (o.json) {
       sections.push_back("  \"model\": " + modelJson(b, ""));
     } else {
@@ -730,6 +745,9 @@ void addBenchCommand(CLI::App& root, CommandList& commands) {
   app->add_flag("--peers", o->peers,
                 "wall time of each scheme to simulate 10 s at a trajectory error of 1e-3");
   app->add_flag("--quick", o->quick, "smaller models and shorter runs (for tests)");
+  app->add_flag("--drift-filter,!--no-drift-filter", o->driftFilter,
+                "default scheme on braced models: filter the drift too (on unless "
+                "--no-drift-filter; docs/solver.md, section 6)");
   commands.push_back({app, [o]() { return runBench(*o); }});
 }
 

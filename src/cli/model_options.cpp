@@ -96,9 +96,9 @@ void RunOptions::addTo(CLI::App* app) {
                   "repeatable)");
   app->add_flag("--allow-unstable", allowUnstable,
                 "run even above the scheme's stable limit (to watch it diverge)");
-  app->add_flag("--drift-filter", driftFilter,
-                "default scheme on braced models: filter the drift too (docs/solver.md, "
-                "section 6)");
+  app->add_flag("--drift-filter,!--no-drift-filter", driftFilter,
+                "default scheme on braced models: filter the drift too (on unless "
+                "--no-drift-filter; docs/solver.md, section 6)");
   app->add_flag("--json", json, "a JSON summary on standard output");
 }
 

@@ -45,7 +45,7 @@ struct RunOptions {
   std::vector<std::string> forces, torques;
   std::vector<std::string> pins, pinNormals;
   bool allowUnstable = false;
-  bool driftFilter = false;
+  bool driftFilter = true;
   bool json = false;
 
   void addTo(CLI::App* app);

@@ -682,8 +682,8 @@ void Stepper::stepDriftFiltered(State& s, const Points& external, std::span<cons
       for (Index i = forces_.blockBegin(b); i < forces_.blockEnd(b); ++i) {
         const double* ui = u + 3 * static_cast<size_t>(i);
         for (int q = 0; q < 4; ++q) {
-          const double mb = mass[i] * basis[i + q * affineBasis_.rows()];
-          const double mob = mass[i] * omegaBasis[i + q * omegaBasis_.rows()];
+          const double mb = mass[i] * basis[4 * static_cast<size_t>(i) + q];
+          const double mob = mass[i] * omegaBasis[4 * static_cast<size_t>(i) + q];
           for (int d = 0; d < 3; ++d) {
             sum[3 * q + d] += mb * ui[d];
             sum[12 + 3 * q + d] += mob * ui[d];
@@ -718,15 +718,16 @@ void Stepper::stepDriftFiltered(State& s, const Points& external, std::span<cons
     auto product = [&](const double* u, Index i, double out[3]) {
       rowProduct(o2, u, i, out);
       for (int q = 0; q < 4; ++q) {
-        const double ob = omegaBasis[i + q * omegaBasis_.rows()];
-        const double bq = basis[i + q * affineBasis_.rows()];
+        const double ob = omegaBasis[4 * static_cast<size_t>(i) + q];
+        const double bq = basis[4 * static_cast<size_t>(i) + q];
         for (int d = 0; d < 3; ++d)
           out[d] -= ob * coefficient[3 * q + d] + bq * coefficient[12 + 3 * q + d];
       }
     };
     // kick_ = (T/2) Phi a = (T/2) a - (T^3/24) W a, from the internal forces f; with loads,
-    // the total force on the way (lastTotalForce).
-    auto filteredKick = [&](const double* f, double* total) {
+    // the total force on the way (lastTotalForce). The second kick (last) also finishes the
+    // velocity, v = (v + kick) e^{-GT/2}, in the same pass.
+    auto filteredKick = [&](const double* f, double* total, bool last) {
       withCase([&](auto loads, auto withGravity, auto withShare) {
 #pragma omp for schedule(static)
         for (Index b = 0; b < blocks; ++b) {
@@ -746,6 +747,10 @@ void Stepper::stepDriftFiltered(State& s, const Points& external, std::span<cons
           double w[3];
           product(acc, i, w);
           for (int d = 0; d < 3; ++d) kick[k + d] = half * acc[k + d] - filter * w[d];
+          if (last) {
+            const double damp = dampHalf_[i];
+            for (int d = 0; d < 3; ++d) v[k + d] = (v[k + d] + kick[k + d]) * damp;
+          }
         }
     };
     if (!reuse) {
@@ -754,7 +759,7 @@ void Stepper::stepDriftFiltered(State& s, const Points& external, std::span<cons
 #pragma omp for schedule(static)
         for (Index b = 0; b < blocks; ++b) forces_.gatherBlock(b, internal_);
       }
-      filteredKick(internal_.data(), zero ? nullptr : totalForce_.data());
+      filteredKick(internal_.data(), zero ? nullptr : totalForce_.data(), false);
     }
     // First kick and damping.
 #pragma omp for schedule(static)
@@ -800,14 +805,7 @@ void Stepper::stepDriftFiltered(State& s, const Points& external, std::span<cons
     drift();
     // Internal forces at the new position, the second kick and damping.
     forces_.scatter(model_, s.position, previousInternal_);
-    filteredKick(previousInternal_.data(), nullptr);
-#pragma omp for schedule(static)
-    for (Index b = 0; b < blocks; ++b)
-      for (Index i = forces_.blockBegin(b); i < forces_.blockEnd(b); ++i) {
-        const size_t k = 3 * static_cast<size_t>(i);
-        const double damp = dampHalf_[i];
-        for (int d = 0; d < 3; ++d) v[k + d] = (v[k + d] + kick[k + d]) * damp;
-      }
+    filteredKick(previousInternal_.data(), nullptr, true);
 #pragma omp single
     externalZero = zero;
   }
