@@ -693,6 +693,7 @@ void Stepper::stepDriftFiltered(State& s, const Points& external, std::span<cons
       std::copy(sum, sum + 24, partial + 24 * static_cast<size_t>(b));
     };
     // c and d of the vector whose block sums were just made.
+    double local[24];
     auto combine = [&] {
 #pragma omp single
       {
@@ -713,6 +714,9 @@ void Stepper::stepDriftFiltered(State& s, const Points& external, std::span<cons
             coefficient[12 + 3 * q + k] = d(q, k);
           }
       }
+      // Each thread's own copy, which the compiler may keep in registers across a pass
+      // (through the shared array every row would reload all 24).
+      std::copy(coefficient, coefficient + 24, local);
     };
     // (W u)_i with the coefficients of u.
     auto product = [&](const double* u, Index i, double out[3]) {
@@ -720,8 +724,7 @@ void Stepper::stepDriftFiltered(State& s, const Points& external, std::span<cons
       for (int q = 0; q < 4; ++q) {
         const double ob = omegaBasis[4 * static_cast<size_t>(i) + q];
         const double bq = basis[4 * static_cast<size_t>(i) + q];
-        for (int d = 0; d < 3; ++d)
-          out[d] -= ob * coefficient[3 * q + d] + bq * coefficient[12 + 3 * q + d];
+        for (int d = 0; d < 3; ++d) out[d] -= ob * local[3 * q + d] + bq * local[12 + 3 * q + d];
       }
     };
     // kick_ = (T/2) Phi a = (T/2) a - (T^3/24) W a, from the internal forces f; with loads,
