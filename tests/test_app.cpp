@@ -713,16 +713,32 @@ TEST(Window, ScriptedDragAndPaintUnderXvfb) {
   // The painted region changed colour; far from it (paused: nothing moved) it did not.
   EXPECT_GT((pixelAt(after, probes["paint_after"]) - pixelAt(before, probes["paint_before"])).cwiseAbs().sum(), 60.0);
   EXPECT_LT((pixelAt(after, probes["far_after"]) - pixelAt(before, probes["far_before"])).cwiseAbs().sum(), 12.0);
-  // The dab's centre is picked from the vertex's pixel, a fraction of a micrometre off
-  // the vertex; the smooth falloff is flat there (1 - 3 (d/r)^2), so the value is 40 to ~1e-12.
-  EXPECT_NEAR(probes["paint_after"].at("scalar").get<double>(), 40.0, 1e-6);
+  // The dab's centre is the ray's hit on the displayed (refined) surface through the
+  // vertex's pixel. The refined surface passes through the vertex only where the model is
+  // flat around it; how bent the grid still is when the script pauses depends on the
+  // solver thread's timing (Release: 40 to 1e-11; the sanitizer build: 2.6e-4 off the
+  // vertex, 40 - 1.2e-6). So the pick is checked to land on the vertex (within 1 % of the
+  // radius), and the value to be the brush's at the recorded centre.
+  const Recording dabs = readRecording((dir / "session.jsonl").string());
+  std::optional<Vec3> centre;
+  for (const RecordedCommand& c : dabs.commands)
+    if (const auto* edit = std::get_if<Edit>(&c.command))
+      if (const auto* dab = std::get_if<editing::Dab>(&edit->command)) centre = dab->centre.point;
+  ASSERT_TRUE(centre.has_value());
+  const auto& at = probes["paint_before"].at("position");
+  const Vec3 vertex(at[0].get<double>(), at[1].get<double>(), at[2].get<double>());
+  const double t = (*centre - vertex).norm() / 2.5;  // the script's brush radius
+  EXPECT_LT(t, 0.01);
+  const double expected = 5.0 + 35.0 * editing::falloffWeight(editing::Falloff::Smooth, t);
+  EXPECT_NEAR(probes["paint_after"].at("scalar").get<double>(), expected, 1e-12);
+  EXPECT_NEAR(probes["paint_after"].at("scalar").get<double>(), 40.0, 35.0 * 3.0 * 1e-4);
   EXPECT_DOUBLE_EQ(probes["paint_before"].at("scalar").get<double>(), 5.0);
   EXPECT_TRUE(fs::exists(dir / "after_paint_window.png"));
 
   // The saved scene carries the painted stiffness.
   const io::SceneDescription scene = io::loadScene((dir / "sculpted.json").string());
   const Model model = io::buildModel(scene, makeGrid(18));
-  EXPECT_NEAR(model.properties.stiffness[40], 40.0, 1e-6);
+  EXPECT_DOUBLE_EQ(model.properties.stiffness[40], probes["paint_after"].at("scalar").get<double>());
   EXPECT_DOUBLE_EQ(model.properties.stiffness[300], 5.0);
 
   // The recorded session replays to the state the window ended with, bit for bit.

@@ -683,8 +683,12 @@ TEST(Soak, TorusTwoAtNinetyFivePercentOfTMaxUnderAStormOfLoadsPinsDragsAndEdits)
     EXPECT_GT(log.edits, 0);
   }
   // Without damping, E(t) = E0 + W(t) up to the scheme's own energy error, which does not
-  // grow (damping only lowers E): allow 1 % of the energy that has flowed in and out.
-  const double tolerance = 0.01 * (log.e0 + log.inflow);
+  // grow (damping only lowers E): allow 1 % of the energy that has flowed in and out, plus
+  // what the constraint solver's position tolerance (1e-12 of the model's size, 1e-11 m
+  // here) may leave in the springs of a model at rest: kappa (1e-11 m)^2 / 2 over Torus-II's
+  // 3200 springs is 1.5e-18 J (storms of pins or edits alone on a model at rest stay below
+  // 1e-22 J, and 1 % of their inflow is rounding).
+  const double tolerance = 0.01 * (log.e0 + log.inflow) + 2e-18;
   EXPECT_LE(log.worstExcess, tolerance) << "energy exceeded the start energy plus the work put in";
   std::cout << "soak: " << log.cycles << " cycles, " << log.forces << " forces, " << log.torques
             << " torques, " << log.pins << " pins, " << log.drags << " drags, " << log.edits
