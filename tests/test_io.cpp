@@ -240,6 +240,10 @@ TEST(MeshImport, BadFilesGiveOneLineErrorsNamingTheFile) {
       // Would crash assimp 5.2's OFF reader (fuzz_mesh found it): refused before it.
       {data("face_lines_without_counts.off"), "without a vertex count"},
       {corpus("PLY/points.ply"), "empty mesh"},
+      // Would make assimp 5.2's glTF reader copy past its buffer (fuzz_mesh found it):
+      // refused before it.
+      {data("gltf_accessor_misaligned.gltf"), "not a multiple of its component size"},
+      {data("gltf_accessor_past_its_view.gltf"), "of buffer view 3, which has 128"},
   };
   for (const Case& c : cases) {
     const std::string message = errorOf([&] { loadMesh(c.path); });

@@ -555,6 +555,142 @@ void preflightObj(std::istream& in, const std::string& name) {
   }
 }
 
+// Assimp 5.2's glTF 2 reader trusts the sizes a file declares: an accessor that reaches
+// past its buffer view, or a view past its buffer, makes it copy beyond the buffer it
+// allocated (tests/regressions/mesh/gltf_accessor_past_its_buffer_view_overflows, found by
+// the mesh fuzzer). Checks what the glTF 2.0 specification requires of them (3.6.2.4,
+// 5.1, 5.11): every buffer view inside its buffer, every accessor (and sparse part) inside
+// its view, offsets aligned to the component size.
+void preflightGltf(std::istream& in, const std::string& name, bool binary) {
+  const std::string bytes{std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>()};
+  in.clear();
+  in.seekg(0);
+  const GltfParts parts = splitGltf(bytes, binary);
+  if (!parts.valid) return;  // assimp's own error names it
+  const nlohmann::json j = nlohmann::json::parse(parts.json, nullptr, false);
+  if (j.is_discarded() || !j.is_object()) return;
+  auto list = [&](const char* key) {
+    const auto it = j.find(key);
+    return it != j.end() && it->is_array() ? *it : nlohmann::json::array();
+  };
+  // A non-negative integer field, or fallback when absent; anything else is an error.
+  auto number = [&](const nlohmann::json& o, const char* key, std::uint64_t fallback,
+                    const std::string& what) -> std::uint64_t {
+    const auto it = o.find(key);
+    if (it == o.end()) return fallback;
+    if (!it->is_number_unsigned())
+      preflightError(name, what + ": " + key + " is not a non-negative integer");
+    return it->get<std::uint64_t>();
+  };
+  const nlohmann::json buffers = list("buffers"), views = list("bufferViews");
+  std::vector<std::uint64_t> viewLength;
+  for (size_t v = 0; v < views.size(); ++v) {
+    const std::string what = "buffer view " + std::to_string(v);
+    if (!views[v].is_object()) preflightError(name, what + " is not an object");
+    const std::uint64_t buffer = number(views[v], "buffer", buffers.size(), what);
+    if (buffer >= buffers.size() || !buffers[buffer].is_object())
+      preflightError(name,
+                     what + " names buffer " + std::to_string(buffer) + ", which does not exist");
+    const std::uint64_t offset = number(views[v], "byteOffset", 0, what);
+    const std::uint64_t length = number(views[v], "byteLength", 0, what);
+    const std::uint64_t size =
+        number(buffers[buffer], "byteLength", 0, "buffer " + std::to_string(buffer));
+    if (offset > size || length > size - offset)
+      preflightError(name, what + " spans bytes " + std::to_string(offset) + " to " +
+                               std::to_string(offset + length) + " of buffer " +
+                               std::to_string(buffer) + ", which has " + std::to_string(size));
+    viewLength.push_back(length);
+  }
+  auto componentSize = [](std::uint64_t type) -> std::uint64_t {
+    switch (type) {
+      case 5120:
+      case 5121:
+        return 1;  // (unsigned) byte
+      case 5122:
+      case 5123:
+        return 2;  // (unsigned) short
+      case 5125:
+      case 5126:
+        return 4;  // unsigned int, float
+      default:
+        return 0;
+    }
+  };
+  auto componentCount = [](const std::string& type) -> std::uint64_t {
+    if (type == "SCALAR") return 1;
+    if (type == "VEC2") return 2;
+    if (type == "VEC3") return 3;
+    if (type == "VEC4" || type == "MAT2") return 4;
+    if (type == "MAT3") return 9;
+    if (type == "MAT4") return 16;
+    return 0;
+  };
+  // `count` elements of `element` bytes from `offset` in view `view`, `stride` apart
+  // (0: packed), components of `component` bytes.
+  auto fits = [&](const std::string& what, std::uint64_t view, std::uint64_t offset,
+                  std::uint64_t count, std::uint64_t element, std::uint64_t component,
+                  std::uint64_t stride) {
+    if (view >= viewLength.size())
+      preflightError(
+          name, what + " names buffer view " + std::to_string(view) + ", which does not exist");
+    if (component == 0 || element == 0)
+      preflightError(name, what + " has an unknown component type or element type");
+    if (offset % component != 0)
+      preflightError(name, what + ": byteOffset " + std::to_string(offset) +
+                               " is not a multiple of its component size " +
+                               std::to_string(component));
+    if (count == 0) return;
+    const std::uint64_t step = stride == 0 ? element : stride;
+    const std::uint64_t limit = viewLength[view];
+    // offset + step (count - 1) + element <= limit, without overflow.
+    if (offset > limit || element > limit - offset ||
+        (count - 1) > (limit - offset - element) / step)
+      preflightError(name, what + " reads " + std::to_string(count) + " elements of " +
+                               std::to_string(element) + " bytes from byte " +
+                               std::to_string(offset) + " of buffer view " + std::to_string(view) +
+                               ", which has " + std::to_string(limit));
+  };
+  const nlohmann::json accessors = list("accessors");
+  for (size_t a = 0; a < accessors.size(); ++a) {
+    const std::string what = "accessor " + std::to_string(a);
+    const nlohmann::json& acc = accessors[a];
+    if (!acc.is_object()) preflightError(name, what + " is not an object");
+    const std::uint64_t component = componentSize(number(acc, "componentType", 0, what));
+    const auto type = acc.find("type");
+    const std::uint64_t components =
+        type != acc.end() && type->is_string() ? componentCount(type->get<std::string>()) : 0;
+    const std::uint64_t count = number(acc, "count", 0, what);
+    if (acc.contains("bufferView")) {
+      const std::uint64_t view = number(acc, "bufferView", 0, what);
+      const std::uint64_t stride =
+          view < views.size()
+              ? number(views[view], "byteStride", 0, "buffer view " + std::to_string(view))
+              : 0;
+      fits(what, view, number(acc, "byteOffset", 0, what), count, components * component, component,
+           stride);
+    }
+    const auto sparse = acc.find("sparse");
+    if (sparse == acc.end()) continue;
+    if (!sparse->is_object()) preflightError(name, what + ": sparse is not an object");
+    const std::uint64_t sparseCount = number(*sparse, "count", 0, what + " sparse");
+    if (sparseCount > count)
+      preflightError(name, what + ": sparse count " + std::to_string(sparseCount) +
+                               " exceeds the accessor's " + std::to_string(count));
+    for (const char* part : {"indices", "values"}) {
+      const auto p = sparse->find(part);
+      if (p == sparse->end() || !p->is_object())
+        preflightError(name, what + ": sparse " + part + " missing");
+      const std::string where = what + " sparse " + part;
+      const bool indices = std::string(part) == "indices";
+      const std::uint64_t size =
+          indices ? componentSize(number(*p, "componentType", 0, where)) : component;
+      fits(where, number(*p, "bufferView", viewLength.size(), where),
+           number(*p, "byteOffset", 0, where), sparseCount, indices ? size : components * component,
+           size, 0);
+    }
+  }
+}
+
 void preflight(std::istream& in, const std::string& ext, const std::string& name,
                std::uintmax_t size) {
   // Assimp picks a reader by the extension and, when that reader declines, by the content:
@@ -580,6 +716,8 @@ void preflight(std::istream& in, const std::string& ext, const std::string& name
     preflightOff(in, name, size);
   else if (ext == "obj")
     preflightObj(in, name);
+  else if (ext == "gltf" || ext == "glb" || head.rfind("glTF", 0) == 0 || first.rfind('{', 0) == 0)
+    preflightGltf(in, name, head.rfind("glTF", 0) == 0);
 }
 
 /// Runs an assimp read, turning everything it can throw into IOError.
