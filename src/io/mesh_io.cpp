@@ -499,6 +499,15 @@ void preflightOff(std::istream& in, const std::string& name, std::uintmax_t size
   }
 }
 
+// A token from a file for a one-line message: at most 40 characters, anything but printable
+// ASCII shown as '?'.
+std::string printable(std::string_view token) {
+  std::string out;
+  for (char c : token.substr(0, 40)) out += (c >= 0x20 && c < 0x7f) ? c : '?';
+  if (token.size() > 40) out += "...";
+  return out;
+}
+
 // "ply" in any mix of cases: assimp 5.2's PLY reader compares letter by letter with either
 // case ("Ply" is a PLY file to it: tests/regressions/mesh/ply_mixed_case_magic_segv).
 bool startsWithPlyMagic(std::string_view text) {
@@ -526,6 +535,11 @@ void preflightPly(std::istream& in, const std::string& name, std::uintmax_t size
       std::string format;
       words >> format;
       ascii = format == "ascii";
+      // Assimp 5.2 corrupts its heap on a format it does not know
+      // (tests/regressions/mesh/ply_unknown_format_bad_free); the PLY format names three.
+      if (magic && !ascii && format != "binary_little_endian" && format != "binary_big_endian")
+        preflightError(name, "unknown PLY format '" + printable(format) +
+                                 "' (ascii, binary_little_endian or binary_big_endian)");
     } else if (keyword == "element") {
       std::string element;
       unsigned long long count = 0;
