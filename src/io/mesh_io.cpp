@@ -579,6 +579,46 @@ void preflightObj(std::istream& in, const std::string& name) {
   }
 }
 
+// Assimp 5.2 allocates a GLB's chunks at the lengths they declare before reading them: a
+// 1941-byte file whose JSON chunk claims 4.3 GB made it allocate 4.3 GB (found by the mesh
+// fuzzer, tests/regressions/mesh/glb_chunk_length_past_the_file_allocates_gigabytes). The
+// binary glTF container (glTF 2.0, 4.4): a 12-byte header (magic, version, total length),
+// then chunks of length, type and data. Every length must fit in the file.
+void preflightGlbChunks(std::string_view bytes, const std::string& name) {
+  if (bytes.size() < 12)
+    preflightError(name, "a binary glTF needs a 12-byte header; the file has " +
+                             std::to_string(bytes.size()) + " bytes");
+  auto u32 = [&](size_t at) {
+    std::uint32_t v = 0;
+    std::memcpy(&v, bytes.data() + at, 4);
+    return std::uint64_t{v};
+  };
+  const std::uint64_t total = u32(8);
+  if (total > bytes.size())
+    preflightError(name, "the binary glTF header declares " + std::to_string(total) +
+                             " bytes; the file has " + std::to_string(bytes.size()));
+  if (u32(4) == 1) {  // glTF 1.0's KHR_binary_glTF: a 20-byte header, then the JSON
+    const std::uint64_t content = total >= 20 ? u32(12) : 0;
+    if (total < 20 || content > total - 20)
+      preflightError(name, "the binary glTF 1.0 header declares " + std::to_string(content) +
+                               " bytes of JSON in a file of " + std::to_string(total));
+    return;
+  }
+  // Chunks are read to the declared total; what follows it is not part of the glTF.
+  for (std::uint64_t at = 12, chunk = 0; at < total; ++chunk) {
+    if (total - at < 8)
+      preflightError(name, "binary glTF chunk " + std::to_string(chunk) + " at byte " +
+                               std::to_string(at) + " has no room for its 8-byte header");
+    const std::uint64_t length = u32(at);
+    if (length > total - at - 8)
+      preflightError(name, "binary glTF chunk " + std::to_string(chunk) + " declares " +
+                               std::to_string(length) + " bytes; " +
+                               std::to_string(total - at - 8) + " remain of the " +
+                               std::to_string(total) + " the header declares");
+    at += 8 + length;
+  }
+}
+
 // Assimp 5.2's glTF 2 reader trusts the sizes a file declares: an accessor that reaches
 // past its buffer view, or a view past its buffer, makes it copy beyond the buffer it
 // allocated (tests/regressions/mesh/gltf_accessor_past_its_buffer_view_overflows, found by
@@ -589,6 +629,7 @@ void preflightGltf(std::istream& in, const std::string& name, bool binary) {
   const std::string bytes{std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>()};
   in.clear();
   in.seekg(0);
+  if (binary) preflightGlbChunks(bytes, name);
   const GltfParts parts = splitGltf(bytes, binary);
   if (!parts.valid) return;  // assimp's own error names it
   const nlohmann::json j = nlohmann::json::parse(parts.json, nullptr, false);
