@@ -90,6 +90,52 @@ inline void rowProduct(const SparseRowMatrix& a, const double* x, Index i, doubl
   out[2] = sz;
 }
 
+// A point (x, y, z) as one SSE2 register (x, y) and a double (z): the drift filter's row
+// kernels work on whole points. Element by element the operations, and their order, are
+// those of scalar code, so the results are the same bits.
+using Pair = double __attribute__((vector_size(16)));
+struct PackedPoint {
+  Pair xy = {0.0, 0.0};
+  double z = 0.0;
+};
+inline PackedPoint operator+(PackedPoint a, PackedPoint b) {
+  return {a.xy + b.xy, a.z + b.z};
+}
+inline PackedPoint operator-(PackedPoint a, PackedPoint b) {
+  return {a.xy - b.xy, a.z - b.z};
+}
+inline PackedPoint operator*(double s, PackedPoint a) {
+  return {s * a.xy, s * a.z};
+}
+inline PackedPoint operator*(PackedPoint a, double s) {
+  return {a.xy * s, a.z * s};
+}
+inline PackedPoint& operator+=(PackedPoint& a, PackedPoint b) {
+  return a = a + b;
+}
+inline PackedPoint& operator-=(PackedPoint& a, PackedPoint b) {
+  return a = a - b;
+}
+
+inline PackedPoint loadPoint(const double* p) {
+  return {Pair{p[0], p[1]}, p[2]};
+}
+
+inline void storePoint(double* p, PackedPoint v) {
+  p[0] = v.xy[0];
+  p[1] = v.xy[1];
+  p[2] = v.z;
+}
+
+// (A u)_i for the N x N CSR matrix A and N x 3 points u.
+inline PackedPoint packedRowProduct(const Index* outer, const Index* inner, const double* value,
+                                    const double* u, Index i) {
+  PackedPoint sum;
+  for (Index p = outer[i]; p < outer[i + 1]; ++p)
+    sum += value[p] * loadPoint(u + 3 * static_cast<size_t>(inner[p]));
+  return sum;
+}
+
 // The drift filter psi(x) = phi(x) q(x), phi = 1 - x/12, with q a cubic fit of
 // 1 / (1 + x phi^2 / 4) on [0, 16] (within 2.6 %): the exact psi makes every mode's mean
 // true energy its start energy (docs/solver.md section 6). Psi = I + sum_k a_k (T^2 W)^k.
@@ -648,6 +694,9 @@ void Stepper::stepDriftFiltered(State& s, const Points& external, std::span<cons
   const bool startCached = cacheValid_;
   const bool reuseCandidate = cacheValid_ && kickValid_ && share.empty();
   const SparseRowMatrix& o2 = system_.omega2();
+  const Index* outer = o2.outerIndexPtr();
+  const Index* inner = o2.innerIndexPtr();
+  const double* value = o2.valuePtr();
   const double* inverseMass = system_.inverseMass().data();
   const double* mass = model_.properties.mass.data();
   const double* basis = affineBasis_.data();
@@ -676,24 +725,27 @@ void Stepper::stepDriftFiltered(State& s, const Points& external, std::span<cons
                             double a[3], double* sum) {
       accelerationRow(inputs, loads, withGravity, withShare, f, j, a, sum);
     };
-    // Block b's share of B^T M u and (Omega^2 B)^T M u (24 numbers).
-    auto sumBlock = [&](Index b, const double* u) {
-      double sum[24] = {};
-      for (Index i = forces_.blockBegin(b); i < forces_.blockEnd(b); ++i) {
-        const double* ui = u + 3 * static_cast<size_t>(i);
-        for (int q = 0; q < 4; ++q) {
-          const double mb = mass[i] * basis[4 * static_cast<size_t>(i) + q];
-          const double mob = mass[i] * omegaBasis[4 * static_cast<size_t>(i) + q];
-          for (int d = 0; d < 3; ++d) {
-            sum[3 * q + d] += mb * ui[d];
-            sum[12 + 3 * q + d] += mob * ui[d];
-          }
-        }
+    // Block b's share of B^T M u and (Omega^2 B)^T M u (24 numbers), from row i's term
+    // on: the passes that make u add each row's term as they write it (sumRow), while it
+    // is in a register.
+    struct BlockSum {
+      PackedPoint basis[4] = {}, omega[4] = {};
+    };
+    auto sumRow = [&](BlockSum& sum, Index i, PackedPoint ui) {
+      for (int q = 0; q < 4; ++q) {
+        sum.basis[q] += (mass[i] * basis[4 * static_cast<size_t>(i) + q]) * ui;
+        sum.omega[q] += (mass[i] * omegaBasis[4 * static_cast<size_t>(i) + q]) * ui;
       }
-      std::copy(sum, sum + 24, partial + 24 * static_cast<size_t>(b));
+    };
+    auto storeSum = [&](Index b, const BlockSum& sum) {
+      double* out = partial + 24 * static_cast<size_t>(b);
+      for (int q = 0; q < 4; ++q) {
+        storePoint(out + 3 * q, sum.basis[q]);
+        storePoint(out + 12 + 3 * q, sum.omega[q]);
+      }
     };
     // c and d of the vector whose block sums were just made.
-    double local[24];
+    PackedPoint localC[4], localD[4];
     auto combine = [&] {
 #pragma omp single
       {
@@ -716,16 +768,18 @@ void Stepper::stepDriftFiltered(State& s, const Points& external, std::span<cons
       }
       // Each thread's own copy, which the compiler may keep in registers across a pass
       // (through the shared array every row would reload all 24).
-      std::copy(coefficient, coefficient + 24, local);
+      for (int q = 0; q < 4; ++q) {
+        localC[q] = loadPoint(coefficient + 3 * q);
+        localD[q] = loadPoint(coefficient + 12 + 3 * q);
+      }
     };
     // (W u)_i with the coefficients of u.
-    auto product = [&](const double* u, Index i, double out[3]) {
-      rowProduct(o2, u, i, out);
-      for (int q = 0; q < 4; ++q) {
-        const double ob = omegaBasis[4 * static_cast<size_t>(i) + q];
-        const double bq = basis[4 * static_cast<size_t>(i) + q];
-        for (int d = 0; d < 3; ++d) out[d] -= ob * local[3 * q + d] + bq * local[12 + 3 * q + d];
-      }
+    auto product = [&](const double* u, Index i) {
+      PackedPoint w = packedRowProduct(outer, inner, value, u, i);
+      for (int q = 0; q < 4; ++q)
+        w -= omegaBasis[4 * static_cast<size_t>(i) + q] * localC[q] +
+             basis[4 * static_cast<size_t>(i) + q] * localD[q];
+      return w;
     };
     // kick_ = (T/2) Phi a = (T/2) a - (T^3/24) W a, from the internal forces f; with loads,
     // the total force on the way (lastTotalForce). The second kick (last) also finishes the
@@ -735,11 +789,13 @@ void Stepper::stepDriftFiltered(State& s, const Points& external, std::span<cons
 #pragma omp for schedule(static)
         for (Index b = 0; b < blocks; ++b) {
           if (f == previousInternal_.data()) forces_.gatherBlock(b, previousInternal_);
+          BlockSum sum;
           for (Index i = forces_.blockBegin(b); i < forces_.blockEnd(b); ++i) {
             const size_t k = 3 * static_cast<size_t>(i);
             acceleration(loads, withGravity, withShare, f, i, acc + k, total ? total + k : nullptr);
+            sumRow(sum, i, loadPoint(acc + k));
           }
-          sumBlock(b, acc);
+          storeSum(b, sum);
         }
       });
       combine();
@@ -747,13 +803,9 @@ void Stepper::stepDriftFiltered(State& s, const Points& external, std::span<cons
       for (Index b = 0; b < blocks; ++b)
         for (Index i = forces_.blockBegin(b); i < forces_.blockEnd(b); ++i) {
           const size_t k = 3 * static_cast<size_t>(i);
-          double w[3];
-          product(acc, i, w);
-          for (int d = 0; d < 3; ++d) kick[k + d] = half * acc[k + d] - filter * w[d];
-          if (last) {
-            const double damp = dampHalf_[i];
-            for (int d = 0; d < 3; ++d) v[k + d] = (v[k + d] + kick[k + d]) * damp;
-          }
+          const PackedPoint kicked = half * loadPoint(acc + k) - filter * product(acc, i);
+          storePoint(kick + k, kicked);
+          if (last) storePoint(v + k, (loadPoint(v + k) + kicked) * dampHalf_[i]);
         }
     };
     if (!reuse) {
@@ -767,14 +819,14 @@ void Stepper::stepDriftFiltered(State& s, const Points& external, std::span<cons
     // First kick and damping.
 #pragma omp for schedule(static)
     for (Index b = 0; b < blocks; ++b) {
+      BlockSum sum;
       for (Index i = forces_.blockBegin(b); i < forces_.blockEnd(b); ++i) {
         const size_t k = 3 * static_cast<size_t>(i);
-        const double damp = dampHalf_[i];
-        for (int d = 0; d < 3; ++d) {
-          v[k + d] = v[k + d] * damp + kick[k + d];
-        }
+        const PackedPoint vi = loadPoint(v + k) * dampHalf_[i] + loadPoint(kick + k);
+        storePoint(v + k, vi);
+        sumRow(sum, i, vi);
       }
-      sumBlock(b, v);
+      storeSum(b, sum);
     }
     // The drift, Psi v by Horner: w1 = a3 v + a4 T^2 W v; w2 = a2 v + T^2 W w1;
     // w1 = a1 v + T^2 W w2; r += T (v + T^2 W w1).
@@ -783,13 +835,14 @@ void Stepper::stepDriftFiltered(State& s, const Points& external, std::span<cons
       auto hornerPass = [&](const double* u, double* out, double a, double b4) {
 #pragma omp for schedule(static)
         for (Index b = 0; b < blocks; ++b) {
+          BlockSum sum;
           for (Index i = forces_.blockBegin(b); i < forces_.blockEnd(b); ++i) {
             const size_t k = 3 * static_cast<size_t>(i);
-            double w[3];
-            product(u, i, w);
-            for (int d = 0; d < 3; ++d) out[k + d] = a * v[k + d] + b4 * t2 * w[d];
+            const PackedPoint o = a * loadPoint(v + k) + (b4 * t2) * product(u, i);
+            storePoint(out + k, o);
+            sumRow(sum, i, o);
           }
-          sumBlock(b, out);
+          storeSum(b, sum);
         }
         combine();
       };
@@ -800,9 +853,7 @@ void Stepper::stepDriftFiltered(State& s, const Points& external, std::span<cons
       for (Index b = 0; b < blocks; ++b)
         for (Index i = forces_.blockBegin(b); i < forces_.blockEnd(b); ++i) {
           const size_t k = 3 * static_cast<size_t>(i);
-          double w[3];
-          product(w1, i, w);
-          for (int d = 0; d < 3; ++d) r[k + d] += t * (v[k + d] + t2 * w[d]);
+          storePoint(r + k, loadPoint(r + k) + t * (loadPoint(v + k) + t2 * product(w1, i)));
         }
     };
     drift();
