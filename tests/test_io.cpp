@@ -251,6 +251,12 @@ TEST(MeshImport, BadFilesGiveOneLineErrorsNamingTheFile) {
       {data("ply_unknown_format.ply"), "unknown PLY format"},
       // A JSON chunk claiming 4.3 GB in a 1941-byte GLB: assimp 5.2 allocated all of it.
       {data("glb_chunk_length_past_the_file.glb"), "chunk 0 declares 4278125464 bytes"},
+      // Neither glTF reader takes it, and assimp 5.2 would hand it to the first reader whose
+      // words it holds (OpenGEX, which read past its buffer): refused by name.
+      {data("glb_with_opengex_words.glb"),
+       "not a .glb file that assimp can read; it would read the content as Open Game Engine"},
+      // OpenGEX cut inside a token: assimp 5.2's OpenDDL parser reads past the text's end.
+      {data("opengex_truncated.ogex"), "OpenGEX text that does not end with '}'"},
   };
   for (const Case& c : cases) {
     const std::string message = errorOf([&] { loadMesh(c.path); });

@@ -1,5 +1,6 @@
 #include "zsculpt/io/mesh_io.h"
 
+#include <assimp/BaseImporter.h>
 #include <assimp/config.h>
 #include <assimp/postprocess.h>
 #include <assimp/scene.h>
@@ -21,6 +22,7 @@
 #include <memory>
 #include <nlohmann/json.hpp>
 #include <optional>
+#include <set>
 #include <sstream>
 #include <string_view>
 #include <unordered_map>
@@ -793,6 +795,76 @@ const aiScene* guardedRead(const std::string& name, Read&& read) {
   }
 }
 
+// Assimp 5.2.5 picks a reader as Importer::ReadFile does here: the readers whose extension
+// list ends the file's name; the only one, or the first of several whose CanRead accepts the
+// content; and when none does (or none is named for the file), the first of all the readers
+// whose CanRead accepts it, by a few words of the content whatever the file's name. A
+// damaged .glb holding the word "IndexArray" went to the OpenGEX reader that way, which read
+// past its buffer (tests/regressions/mesh/glb_with_opengex_words_overreads, found by the
+// mesh fuzzer). The same choice is made here first, and refused are: a file named for one
+// format whose content would go to the reader of another (that reader is never what the
+// name asks for), and OpenGEX text that does not end with its closing brace, on which
+// assimp 5.2's OpenDDL parser reads past the end of the text (a .ogex or a file without a
+// known extension can still reach it).
+void refuseForeignReader(const Assimp::Importer& importer, const std::string& path,
+                         const std::string& name) {
+  std::string lower = path;
+  std::transform(lower.begin(), lower.end(), lower.begin(),
+                 [](unsigned char c) { return static_cast<char>(std::tolower(c)); });
+  auto namedFor = [&](Assimp::BaseImporter& reader) {
+    std::set<std::string> extensions;
+    reader.GetExtensionList(extensions);
+    for (const std::string& e : extensions)  // whole endings: Ogre's is "mesh.xml"
+      if (lower.size() > e.size() && lower.compare(lower.size() - e.size(), e.size(), e) == 0 &&
+          lower[lower.size() - e.size() - 1] == '.')
+        return true;
+    return false;
+  };
+  std::vector<Assimp::BaseImporter*> named;
+  for (size_t i = 0; i < importer.GetImporterCount(); ++i)
+    if (Assimp::BaseImporter* reader = importer.GetImporter(i); reader && namedFor(*reader))
+      named.push_back(reader);
+  Assimp::IOSystem* io = importer.GetIOHandler();
+  Assimp::BaseImporter* chosen = named.size() == 1 ? named.front() : nullptr;
+  bool foreign = false;
+  try {
+    for (size_t k = 0; chosen == nullptr && k < named.size(); ++k)
+      if (named[k]->CanRead(path, io, true)) chosen = named[k];
+    for (size_t i = 0; chosen == nullptr && i < importer.GetImporterCount(); ++i) {
+      Assimp::BaseImporter* reader = importer.GetImporter(i);
+      if (reader != nullptr && reader->CanRead(path, io, true)) {
+        chosen = reader;
+        foreign = !named.empty();
+      }
+    }
+  } catch (const std::exception& e) {
+    throw IOError(name + ": " + oneLine(e.what()));
+  }
+  if (chosen == nullptr) return;  // "No suitable reader found": readFailed names it
+  const aiImporterDesc* info = chosen->GetInfo();
+  const std::string reader =
+      info != nullptr && info->mName != nullptr ? info->mName : "another format";
+  // XML is a container many formats share: there the content names the format
+  // (XGL/sample_official_asxml.xml of the corpus is read by the XGL reader this way).
+  if (foreign && !lower.ends_with(".xml"))
+    throw IOError(name + ": not a " + lower.substr(lower.find_last_of('.')) +
+                  " file that assimp can read; it would read the content as " + reader);
+  std::set<std::string> extensions;
+  chosen->GetExtensionList(extensions);
+  if (extensions.count("ogex") != 0) {
+    std::ifstream in(path, std::ios::binary);
+    in.seekg(0, std::ios::end);
+    char last = ' ';
+    for (std::streamoff at = static_cast<std::streamoff>(in.tellg()) - 1;
+         at >= 0 && std::isspace(static_cast<unsigned char>(last)); --at) {
+      in.seekg(at);
+      in.get(last);
+    }
+    if (last != '}')
+      throw IOError(name + ": OpenGEX text that does not end with '}' (truncated or not OpenGEX)");
+  }
+}
+
 [[noreturn]] void readFailed(const std::string& name, const std::string& ext,
                              const Assimp::Importer& importer) {
   const std::string error = oneLine(importer.GetErrorString());
@@ -1013,6 +1085,7 @@ Mesh loadMesh(const std::string& path, MeshLoadReport* report) {
   }
   Assimp::Importer importer;
   configure(importer);
+  refuseForeignReader(importer, path, path);
   const aiScene* scene = guardedRead(path, [&] { return importer.ReadFile(path, kImportFlags); });
   if (scene == nullptr) readFailed(path, ext, importer);
   return meshFromScene(*scene, path, report, gltfPrimitivesOfFile(path, ext));
@@ -1057,6 +1130,7 @@ Mesh loadMeshFromMemory(const void* data, std::size_t size, const std::string& h
   }
   Assimp::Importer importer;
   configure(importer);
+  refuseForeignReader(importer, remove.path, name);
   const aiScene* scene =
       guardedRead(name, [&] { return importer.ReadFile(remove.path, kImportFlags); });
   if (scene == nullptr) readFailed(name, ext, importer);
