@@ -580,34 +580,21 @@ void Stepper::stepDefault(State& s, const Points& external, std::span<const doub
     };
     auto filteredKick = [&](auto loads, auto withGravity, auto withShare, const double* f, Index i,
                             double* out, double* total) {
-      double wx = 0.0, wy = 0.0, wz = 0.0;
+      PackedPoint w;
       for (Index p = outer[i]; p < outer[i + 1]; ++p) {
         double a[3];
         acceleration(loads, withGravity, withShare, f, inner[p], a, nullptr);
-        wx += value[p] * a[0];
-        wy += value[p] * a[1];
-        wz += value[p] * a[2];
+        w += value[p] * loadPoint(a);
       }
       double a[3];
       acceleration(loads, withGravity, withShare, f, i, a, total);
-      out[0] = half * a[0] - filter * wx;
-      out[1] = half * a[1] - filter * wy;
-      out[2] = half * a[2] - filter * wz;
+      storePoint(out, half * loadPoint(a) - filter * w);
     };
     // The same from stored accelerations.
     auto storedKick = [&](Index i, double* out) {
       const double* a = acceleration_.data();
-      double wx = 0.0, wy = 0.0, wz = 0.0;
-      for (Index p = outer[i]; p < outer[i + 1]; ++p) {
-        const double* aj = a + 3 * static_cast<size_t>(inner[p]);
-        wx += value[p] * aj[0];
-        wy += value[p] * aj[1];
-        wz += value[p] * aj[2];
-      }
-      const double* ai = a + 3 * static_cast<size_t>(i);
-      out[0] = half * ai[0] - filter * wx;
-      out[1] = half * ai[1] - filter * wy;
-      out[2] = half * ai[2] - filter * wz;
+      const PackedPoint w = packedRowProduct(outer, inner, value, a, i);
+      storePoint(out, half * loadPoint(a + 3 * static_cast<size_t>(i)) - filter * w);
     };
     if (!reuse && !startCached) {
       forces_.scatter(model_, s.position, internal_);
@@ -625,11 +612,9 @@ void Stepper::stepDefault(State& s, const Points& external, std::span<const doub
           if (!reuse)
             filteredKick(loads, withGravity, withShare, f0, i, kick + k,
                          total ? total + k : nullptr);
-          const double damp = dampHalf_[i];
-          for (int d = 0; d < 3; ++d) {
-            v[k + d] = v[k + d] * damp + kick[k + d];
-            r[k + d] += t * v[k + d];
-          }
+          const PackedPoint vi = loadPoint(v + k) * dampHalf_[i] + loadPoint(kick + k);
+          storePoint(v + k, vi);
+          storePoint(r + k, loadPoint(r + k) + t * vi);
         }
     });
     // Internal forces at the new position.
@@ -659,8 +644,7 @@ void Stepper::stepDefault(State& s, const Points& external, std::span<const doub
             storedKick(i, kick + k);
           else
             filteredKick(loads, withGravity, withShare, f1, i, kick + k, nullptr);
-          const double damp = dampHalf_[i];
-          for (int d = 0; d < 3; ++d) v[k + d] = (v[k + d] + kick[k + d]) * damp;
+          storePoint(v + k, (loadPoint(v + k) + loadPoint(kick + k)) * dampHalf_[i]);
         }
     });
 #pragma omp single
