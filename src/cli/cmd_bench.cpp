@@ -278,7 +278,7 @@ void printModelRow(const ModelBench& b) {
   if (b.stepSerial > 0.0)
     std::cout << "   (1 thread " << std::setprecision(4) << b.stepSerial << " s, x"
               << std::setprecision(3) << b.stepSerial / b.step << ")";
-  std::cout << "\n";
+  std::cout << std::endl;  // the scaling series runs for minutes: each row as it comes
 }
 
 // ---- --table1 ---------------------------------------------------------------------------------
@@ -535,7 +535,7 @@ std::vector<PeerResult> runPeersOn(const std::string& name, const Model& model,
     std::cout << name << " (" << model.mesh.numVertices() << " vertices, T_max " << tMax
               << " s): reference = default at dt " << interval / static_cast<double>(2 * kRef)
               << " s, its own error estimate " << std::setprecision(3) << referenceError / 3.0
-              << "\n";
+              << std::endl;
   std::vector<PeerResult> results;
   for (Scheme scheme : {Scheme::Default, Scheme::Paper, Scheme::SymplecticEuler,
                         Scheme::ImplicitEuler}) {
@@ -623,7 +623,7 @@ std::vector<PeerResult> runPeersOn(const std::string& name, const Model& model,
                 << r.steps << "  error " << std::setw(9) << std::setprecision(3) << r.error
                 << "  wall " << std::setw(9) << std::setprecision(4) << r.seconds << " s";
       if (!r.note.empty()) std::cout << "  [" << r.note << "]";
-      std::cout << "\n";
+      std::cout << std::endl;  // a long run: show each row as it comes
     }
   }
   return results;
