@@ -252,11 +252,14 @@ TEST(MeshImport, BadFilesGiveOneLineErrorsNamingTheFile) {
       // A JSON chunk claiming 4.3 GB in a 1941-byte GLB: assimp 5.2 allocated all of it.
       {data("glb_chunk_length_past_the_file.glb"), "chunk 0 declares 4278125464 bytes"},
       // Neither glTF reader takes it, and assimp 5.2 would hand it to the first reader whose
-      // words it holds (OpenGEX, which read past its buffer): refused by name.
-      {data("glb_with_opengex_words.glb"),
-       "not a .glb file that assimp can read; it would read the content as Open Game Engine"},
+      // words it holds (OpenGEX, which read past its buffer on the fuzzer's input): refused.
+      {data("json_with_opengex_words.gltf"),
+       "not a .gltf file that assimp can read; it would read the content as Open Game Engine"},
       // OpenGEX cut inside a token: assimp 5.2's OpenDDL parser reads past the text's end.
       {data("opengex_truncated.ogex"), "OpenGEX text that does not end with '}'"},
+      // Ill-formed UTF-8 in a key: assimp's JSON parser took it and its glTF reader crashed
+      // on the accessor whose componentType key it garbled (Release too).
+      {data("glb_json_ill_formed_utf8.glb"), "its glTF JSON does not parse"},
   };
   for (const Case& c : cases) {
     const std::string message = errorOf([&] { loadMesh(c.path); });

@@ -627,15 +627,34 @@ void preflightGlbChunks(std::string_view bytes, const std::string& name) {
 // the mesh fuzzer). Checks what the glTF 2.0 specification requires of accessors (3.6.2.4,
 // 5.1, 5.11): every accessor (and sparse part) inside its buffer view, offsets aligned to
 // the component size, and views naming buffers that exist.
-void preflightGltf(std::istream& in, const std::string& name, bool binary) {
+void preflightGltf(std::istream& in, const std::string& name, bool binary, bool named) {
   const std::string bytes{std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>()};
   in.clear();
   in.seekg(0);
   if (binary) preflightGlbChunks(bytes, name);
   const GltfParts parts = splitGltf(bytes, binary);
   if (!parts.valid) return;  // assimp's own error names it
-  const nlohmann::json j = nlohmann::json::parse(parts.json, nullptr, false);
-  if (j.is_discarded() || !j.is_object()) return;
+  // JSON that does not parse is refused: assimp's parser (rapidjson) takes some of it, such
+  // as ill-formed UTF-8 in a key, and its glTF reader then dereferences what is missing (a
+  // SEGV on an accessor whose componentType key was garbled:
+  // tests/regressions/mesh/glb_garbled_key_segv, found by the mesh fuzzer).
+  // (Only for files named .gltf or .glb: other files that merely start with '{' go to their
+  // own readers, e.g. a binary STL whose free-text header starts so.)
+  nlohmann::json j;
+  try {
+    j = nlohmann::json::parse(parts.json);
+  } catch (const nlohmann::json::parse_error& e) {
+    if (!named) return;
+    std::string reason = e.what();  // "[json.exception.parse_error.101] parse error at ..."
+    reason = reason.substr(reason.find("] ") == std::string::npos ? 0 : reason.find("] ") + 2);
+    for (char& c : reason)
+      if (c < 0x20 || c >= 0x7f) c = '?';
+    preflightError(name, "its glTF JSON does not parse: " + reason.substr(0, 200));
+  }
+  if (!j.is_object()) {
+    if (!named) return;
+    preflightError(name, "its glTF JSON is not an object");
+  }
   auto list = [&](const char* key) {
     const auto it = j.find(key);
     return it != j.end() && it->is_array() ? *it : nlohmann::json::array();
@@ -780,7 +799,7 @@ void preflight(std::istream& in, const std::string& ext, const std::string& name
   else if (ext == "obj")
     preflightObj(in, name);
   else if (ext == "gltf" || ext == "glb" || head.rfind("glTF", 0) == 0 || first.rfind('{', 0) == 0)
-    preflightGltf(in, name, head.rfind("glTF", 0) == 0);
+    preflightGltf(in, name, head.rfind("glTF", 0) == 0, ext == "gltf" || ext == "glb");
 }
 
 /// Runs an assimp read, turning everything it can throw into IOError.
