@@ -260,9 +260,11 @@ TEST(MeshImport, BadFilesGiveOneLineErrorsNamingTheFile) {
       // Ill-formed UTF-8 in a key: assimp's JSON parser took it and its glTF reader crashed
       // on the accessor whose componentType key it garbled (Release too).
       {data("glb_json_ill_formed_utf8.glb"), "its glTF JSON does not parse"},
-      // "OFF33" and a count of 5535235350: assimp 5.2 reads the counts after any first word
-      // and reserved 19 GB for this 36-byte file.
-      {data("off_odd_keyword_huge_count.off"), "declares 5535235350 vertices"},
+      // "OFF33": to assimp 5.2 the keyword and 33 vertices, then 5535235350 faces, for which
+      // it reserved 19 GB (this file is 36 bytes).
+      {data("off_odd_keyword_huge_count.off"), "declares 33 vertices"},
+      // "OFF35235350": 35 million vertices reserved for a 14-byte file (over 10 s under ASan).
+      {data("off_keyword_glued_to_its_count.off"), "declares 35235350 vertices"},
   };
   for (const Case& c : cases) {
     const std::string message = errorOf([&] { loadMesh(c.path); });

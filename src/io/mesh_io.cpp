@@ -458,19 +458,28 @@ void preflightOff(std::istream& in, const std::string& name, std::uintmax_t size
   const std::string text{std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>()};
   AssimpOffWalk walk(text);
   walk.nextToken();
-  // The keyword is optional: without it the counts come first. Whatever word stands first,
-  // assimp 5.2 reads the counts after it ("OFF33" then 5535235350 vertices made it reserve
-  // 19 GB: tests/regressions/mesh/off_odd_keyword_huge_count_allocates_gigabytes, found by
-  // the mesh fuzzer), so they are checked after any word but the other layouts' keywords.
-  const std::string_view keyword = walk.word();
-  if (keyword.empty() || !std::isdigit(static_cast<unsigned char>(keyword[0]))) {
-    const bool offKeyword = keyword.size() >= 3 && keyword.substr(keyword.size() - 3) == "OFF";
-    if (offKeyword && (keyword.find('n') != std::string_view::npos ||
-                       keyword.find('4') != std::string_view::npos))
-      return;
-    walk.skip(keyword.size());
+  // The header as assimp 5.2's OFF reader reads it, character by character: optional
+  // prefixes "ST", "C", "N", "4" and "n" (then a dimension before the counts), then "OFF",
+  // which need not end a word: "OFF33" is the keyword and a vertex count of 33 (with a face
+  // count of 5535235350 on the next line it made assimp reserve 19 GB:
+  // tests/regressions/mesh/off_odd_keyword_huge_count_allocates_gigabytes, found by the
+  // mesh fuzzer). Without "OFF" the counts come first.
+  const std::string_view first = walk.word();
+  size_t prefix = 0;
+  auto has = [&](std::string_view p) { return first.substr(prefix, p.size()) == p; };
+  if (has("ST")) prefix += 2;
+  if (has("C")) ++prefix;
+  if (has("N")) ++prefix;
+  if (has("4")) ++prefix;
+  const bool dimension = has("n");
+  if (dimension) ++prefix;
+  const bool keyword = has("OFF");
+  walk.skip(prefix + (keyword ? 3 : 0));
+  walk.nextToken();
+  if (keyword && walk.word() == "BINARY") return;
+  if (dimension) {
+    (void)walk.number();
     walk.nextToken();
-    if (walk.word() == "BINARY") return;
   }
   const std::optional<unsigned long long> vertices = walk.number();
   walk.nextToken();
