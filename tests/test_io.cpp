@@ -265,6 +265,9 @@ TEST(MeshImport, BadFilesGiveOneLineErrorsNamingTheFile) {
       {data("off_odd_keyword_huge_count.off"), "declares 33 vertices"},
       // "OFF35235350": 35 million vertices reserved for a 14-byte file (over 10 s under ASan).
       {data("off_keyword_glued_to_its_count.off"), "declares 35235350 vertices"},
+      // A GLB whose first line ends in "OFF": the container checks must still run (assimp
+      // allocated the 2 GB its JSON chunk claims).
+      {data("glb_first_line_ending_in_off.glb"), "header declares 4696 bytes; the file has 243"},
   };
   for (const Case& c : cases) {
     const std::string message = errorOf([&] { loadMesh(c.path); });

@@ -803,6 +803,16 @@ void preflight(std::istream& in, const std::string& ext, const std::string& name
     std::istringstream words(line.substr(0, line.find('#')));
     words >> first;
   }
+  // A file named .gltf or .glb goes to the glTF readers (refuseForeignReader stops the
+  // others), and one that starts with the binary glTF magic is glTF whatever its first line
+  // ends with: a GLB whose first "line" ended in "OFF" got the OFF checks instead of the
+  // container's, and assimp allocated the 2 GB its JSON chunk claimed
+  // (tests/regressions/mesh/glb_first_line_ending_in_off_allocates_gigabytes).
+  const bool gltfMagic = head.rfind("glTF", 0) == 0;
+  if (ext == "gltf" || ext == "glb" || gltfMagic) {
+    preflightGltf(in, name, gltfMagic, ext == "gltf" || ext == "glb");
+    return;
+  }
   const bool plyText = startsWithPlyMagic(head);
   const bool offText = first.size() >= 3 && first.compare(first.size() - 3, 3, "OFF") == 0;
   if (ext == "ply" || plyText)
@@ -811,8 +821,8 @@ void preflight(std::istream& in, const std::string& ext, const std::string& name
     preflightOff(in, name, size);
   else if (ext == "obj")
     preflightObj(in, name);
-  else if (ext == "gltf" || ext == "glb" || head.rfind("glTF", 0) == 0 || first.rfind('{', 0) == 0)
-    preflightGltf(in, name, head.rfind("glTF", 0) == 0, ext == "gltf" || ext == "glb");
+  else if (first.rfind('{', 0) == 0)
+    preflightGltf(in, name, false, false);
 }
 
 /// Runs an assimp read, turning everything it can throw into IOError.
