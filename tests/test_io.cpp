@@ -268,6 +268,8 @@ TEST(MeshImport, BadFilesGiveOneLineErrorsNamingTheFile) {
       // A GLB whose first line ends in "OFF": the container checks must still run (assimp
       // allocated the 2 GB its JSON chunk claims).
       {data("glb_first_line_ending_in_off.glb"), "header declares 4696 bytes; the file has 243"},
+      // A number beyond double's range: the JSON parser's out_of_range, not parse_error.
+      {data("glb_json_number_overflow.glb"), "its glTF JSON does not parse: number overflow"},
   };
   for (const Case& c : cases) {
     const std::string message = errorOf([&] { loadMesh(c.path); });

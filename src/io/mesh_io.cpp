@@ -656,7 +656,7 @@ void preflightGltf(std::istream& in, const std::string& name, bool binary, bool 
   nlohmann::json j;
   try {
     j = nlohmann::json::parse(parts.json);
-  } catch (const nlohmann::json::parse_error& e) {
+  } catch (const nlohmann::json::exception& e) {  // parse_error, out_of_range (a huge number)
     if (!named) return;
     std::string reason = e.what();  // "[json.exception.parse_error.101] parse error at ..."
     reason = reason.substr(reason.find("] ") == std::string::npos ? 0 : reason.find("] ") + 2);
