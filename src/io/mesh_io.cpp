@@ -46,12 +46,16 @@ namespace {
 // files); meshFromScene checks every pointer, count and index it uses instead.
 constexpr unsigned kImportFlags = 0;
 
+std::string lowercase(std::string text) {
+  std::transform(text.begin(), text.end(), text.begin(),
+                 [](unsigned char c) { return static_cast<char>(std::tolower(c)); });
+  return text;
+}
+
 std::string lowercaseExtension(const std::string& path) {
   std::string ext = fs::path(path).extension().string();
   if (!ext.empty() && ext.front() == '.') ext.erase(0, 1);
-  std::transform(ext.begin(), ext.end(), ext.begin(),
-                 [](unsigned char c) { return static_cast<char>(std::tolower(c)); });
-  return ext;
+  return lowercase(ext);
 }
 
 /// Assimp's messages may span lines; ours are one line.
@@ -514,12 +518,12 @@ void preflightOff(std::istream& in, const std::string& name, std::uintmax_t size
   }
 }
 
-// A token from a file for a one-line message: at most 40 characters, anything but printable
-// ASCII shown as '?'.
-std::string printable(std::string_view token) {
+// Text from a file for a one-line message: at most `limit` characters, anything but
+// printable ASCII shown as '?'.
+std::string printable(std::string_view token, size_t limit = 40) {
   std::string out;
-  for (char c : token.substr(0, 40)) out += (c >= 0x20 && c < 0x7f) ? c : '?';
-  if (token.size() > 40) out += "...";
+  for (char c : token.substr(0, limit)) out += (c >= 0x20 && c < 0x7f) ? c : '?';
+  if (token.size() > limit) out += "...";
   return out;
 }
 
@@ -658,11 +662,10 @@ void preflightGltf(std::istream& in, const std::string& name, bool binary, bool 
     j = nlohmann::json::parse(parts.json);
   } catch (const nlohmann::json::exception& e) {  // parse_error, out_of_range (a huge number)
     if (!named) return;
-    std::string reason = e.what();  // "[json.exception.parse_error.101] parse error at ..."
-    reason = reason.substr(reason.find("] ") == std::string::npos ? 0 : reason.find("] ") + 2);
-    for (char& c : reason)
-      if (c < 0x20 || c >= 0x7f) c = '?';
-    preflightError(name, "its glTF JSON does not parse: " + reason.substr(0, 200));
+    const std::string_view what = e.what();  // "[json.exception.parse_error.101] parse ..."
+    const size_t close = what.find("] ");
+    preflightError(name, "its glTF JSON does not parse: " +
+                             printable(close == what.npos ? what : what.substr(close + 2), 200));
   }
   if (!j.is_object()) {
     if (!named) return;
@@ -850,9 +853,7 @@ const aiScene* guardedRead(const std::string& name, Read&& read) {
 // known extension can still reach it).
 void refuseForeignReader(const Assimp::Importer& importer, const std::string& path,
                          const std::string& name) {
-  std::string lower = path;
-  std::transform(lower.begin(), lower.end(), lower.begin(),
-                 [](unsigned char c) { return static_cast<char>(std::tolower(c)); });
+  const std::string lower = lowercase(path);
   auto namedFor = [&](Assimp::BaseImporter& reader) {
     std::set<std::string> extensions;
     reader.GetExtensionList(extensions);
@@ -1137,9 +1138,7 @@ Mesh loadMeshFromMemory(const void* data, std::size_t size, const std::string& h
                         MeshLoadReport* report) {
   const std::string name = "<memory>." + hint;
   if (data == nullptr || size == 0) throw IOError(name + ": the data is empty");
-  std::string ext = hint;
-  std::transform(ext.begin(), ext.end(), ext.begin(),
-                 [](unsigned char c) { return static_cast<char>(std::tolower(c)); });
+  const std::string ext = lowercase(hint);
   {
     std::istringstream in(std::string(static_cast<const char*>(data), size));
     preflight(in, ext, name, size);

@@ -73,23 +73,6 @@ int maximumThreads() {
 #endif
 }
 
-// (A x)_i for the N x N CSR matrix A and N x 3 points x.
-inline void rowProduct(const SparseRowMatrix& a, const double* x, Index i, double out[3]) {
-  const Index* outer = a.outerIndexPtr();
-  const Index* inner = a.innerIndexPtr();
-  const double* value = a.valuePtr();
-  double sx = 0.0, sy = 0.0, sz = 0.0;
-  for (Index p = outer[i]; p < outer[i + 1]; ++p) {
-    const double* r = x + 3 * static_cast<size_t>(inner[p]);
-    sx += value[p] * r[0];
-    sy += value[p] * r[1];
-    sz += value[p] * r[2];
-  }
-  out[0] = sx;
-  out[1] = sy;
-  out[2] = sz;
-}
-
 // A point (x, y, z) as one SSE2 register (x, y) and a double (z): the drift filter's row
 // kernels work on whole points. Element by element the operations, and their order, are
 // those of scalar code, so the results are the same bits.
@@ -134,6 +117,11 @@ inline PackedPoint packedRowProduct(const Index* outer, const Index* inner, cons
   for (Index p = outer[i]; p < outer[i + 1]; ++p)
     sum += value[p] * loadPoint(u + 3 * static_cast<size_t>(inner[p]));
   return sum;
+}
+
+// The same, written to out[0..2].
+inline void rowProduct(const SparseRowMatrix& a, const double* x, Index i, double out[3]) {
+  storePoint(out, packedRowProduct(a.outerIndexPtr(), a.innerIndexPtr(), a.valuePtr(), x, i));
 }
 
 // The drift filter psi(x) = phi(x) q(x), phi = 1 - x/12, with q a cubic fit of
