@@ -270,6 +270,9 @@ TEST(MeshImport, BadFilesGiveOneLineErrorsNamingTheFile) {
       {data("glb_first_line_ending_in_off.glb"), "header declares 4696 bytes; the file has 243"},
       // A number beyond double's range: the JSON parser's out_of_range, not parse_error.
       {data("glb_json_number_overflow.glb"), "its glTF JSON does not parse: number overflow"},
+      // A GLB whose header declares 0 bytes: the chunk loop never ran, and assimp read the
+      // JSON chunk anyway and allocated the 1.9 GB it claims.
+      {data("glb_total_length_zero.glb"), "header declares 0 bytes, too few"},
   };
   for (const Case& c : cases) {
     const std::string message = errorOf([&] { loadMesh(c.path); });

@@ -257,6 +257,29 @@ TEST(Forces, InternalForcesOfAModelHaveZeroNetForceAndTorque) {
               1e-12);
 }
 
+TEST(Diagnostics, APokeIsAGaussianBumpAlongItsDirectionWithZeroMomentum) {
+  Model model = withAngles(makeTorus(24, 12), 0.8);
+  model.properties.mass[5] = 3.0;  // unequal masses: the mean removed is mass-weighted
+  const Points& x = model.mesh.positions();
+  const double width = 0.3, speed = 0.1;
+  Points v;
+  pokeVelocity(model.properties.mass, x, 0, width, speed, Vec3(0.0, 0.0, 2.0), v);
+  ASSERT_EQ(v.rows(), x.rows());
+  Vec3 momentum = Vec3::Zero();
+  for (Index i = 0; i < v.rows(); ++i) momentum += model.properties.mass[i] * v.row(i).transpose();
+  EXPECT_LT(momentum.norm(), 1e-14);
+  EXPECT_EQ(v.col(0).cwiseAbs().maxCoeff(), 0.0);  // only along the direction given
+  EXPECT_EQ(v.col(1).cwiseAbs().maxCoeff(), 0.0);
+  Index peak = -1;
+  v.col(2).maxCoeff(&peak);
+  EXPECT_EQ(peak, 0);
+  // The difference between two vertices is the Gaussian's, whatever the mean removed.
+  for (Index i = 1; i < v.rows(); ++i) {
+    const double d2 = (x.row(i) - x.row(0)).squaredNorm();
+    EXPECT_NEAR(v(0, 2) - v(i, 2), speed * (1.0 - std::exp(-d2 / (2 * width * width))), 1e-15);
+  }
+}
+
 // ---- matrices and the critical period ----------------------------------------------------
 
 TEST(Matrices, StiffnessIsASymmetricLaplacian) {
@@ -374,6 +397,31 @@ TEST(Schemes, LinearMomentumIsExactForEveryScheme) {
     EXPECT_TRUE(run.finite) << schemeName(scheme);
     EXPECT_LT(run.maxMomentumDrift, 1e-12 * p0 * 1e2) << schemeName(scheme);
   }
+}
+
+TEST(Schemes, ImplicitEulerSolvesBaraffWitkinsSystem) {
+  // With zero rest lengths the springs are linear, f = -K r, and the Jacobian is -K exactly,
+  // so one step must be (M + h D + h^2 K) dv = h (f - D v - h K v): compare the iterative
+  // solve with a dense one, at a step far beyond the explicit schemes' limit.
+  Model model = withAngles(makeTorus(12, 8), 0.0);
+  model.properties.restLength.setZero();
+  model.properties.damping.setConstant(0.2);
+  const SystemMatrices system(model);
+  const double h = 3.0 * criticalPeriod(system);
+  State s = perturbed(model, 0.1, 3);
+  s.position += 0.05 * perturbed(model, 1.0, 4).velocity;
+  const Eigen::MatrixXd k = Eigen::MatrixXd(system.stiffness());
+  const Eigen::VectorXd& m = model.properties.mass;
+  const Eigen::VectorXd& d = model.properties.damping;
+  const Eigen::MatrixXd a = Eigen::MatrixXd((m + h * d).asDiagonal()) + h * h * k;
+  const Eigen::MatrixXd v = s.velocity, r = s.position;
+  const Eigen::MatrixXd rhs = h * (-k * r - d.asDiagonal() * v - h * k * v);
+  const Eigen::MatrixXd velocity = v + a.ldlt().solve(rhs);
+  const Eigen::MatrixXd position = r + h * velocity;
+  Stepper stepper(model, Scheme::ImplicitEuler, h);
+  stepper.step(s, Points::Zero(s.position.rows(), 3));
+  EXPECT_LT((s.velocity - velocity).cwiseAbs().maxCoeff(), 1e-9 * velocity.cwiseAbs().maxCoeff());
+  EXPECT_LT((s.position - position).cwiseAbs().maxCoeff(), 1e-9 * position.cwiseAbs().maxCoeff());
 }
 
 TEST(Schemes, RestShapeIsAnEquilibriumOfTheDefaultScheme) {

@@ -623,6 +623,11 @@ void preflightGlbChunks(std::string_view bytes, const std::string& name) {
                                " bytes of JSON in a file of " + std::to_string(total));
     return;
   }
+  // Assimp reads the JSON chunk whatever the total says: a total too small for it (zero, in
+  // tests/regressions/mesh/glb_total_length_zero_oom) left a 1.9 GB chunk length unchecked.
+  if (total < 20)
+    preflightError(name, "the binary glTF header declares " + std::to_string(total) +
+                             " bytes, too few for its 12-byte header and a chunk's 8");
   // Chunks are read to the declared total; what follows it is not part of the glTF.
   for (std::uint64_t at = 12, chunk = 0; at < total; ++chunk) {
     if (total - at < 8)

@@ -30,6 +30,7 @@ Diagnostics measure(const Model& model, const State& state) {
 
 }  // namespace zsculpt
 
+#include <cmath>
 #include <random>
 
 namespace zsculpt {
@@ -59,6 +60,22 @@ void spinVelocity(const VectorX& mass, const Points& position, const Vec3& omega
   velocity.resize(position.rows(), 3);
   for (Index i = 0; i < position.rows(); ++i)
     velocity.row(i) = omega.cross(Vec3(position.row(i).transpose() - centre)).transpose();
+}
+
+void pokeVelocity(const VectorX& mass, const Points& position, Index centre, double width,
+                  double speed, const Vec3& direction, Points& velocity) {
+  const Index n = position.rows();
+  velocity.resize(n, 3);
+  const Eigen::RowVector3d along = speed * direction.normalized().transpose();
+  const Eigen::RowVector3d origin = position.row(centre);
+  Eigen::RowVector3d momentum = Eigen::RowVector3d::Zero();
+  for (Index i = 0; i < n; ++i) {
+    const double d2 = (position.row(i) - origin).squaredNorm();
+    velocity.row(i) = std::exp(-d2 / (2.0 * width * width)) * along;
+    momentum += mass[i] * velocity.row(i);
+  }
+  const Eigen::RowVector3d drift = momentum / mass.sum();
+  for (Index i = 0; i < n; ++i) velocity.row(i) -= drift;
 }
 
 }  // namespace zsculpt

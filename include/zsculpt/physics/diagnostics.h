@@ -36,4 +36,11 @@ void randomVelocity(const VectorX& mass, double amplitude, unsigned seed, Points
 void spinVelocity(const VectorX& mass, const Points& position, const Vec3& omega,
                   Points& velocity);
 
+/// A sculptor's poke: velocity `speed` along `direction` at vertex `centre`, falling off as
+/// exp(-d^2 / (2 width^2)) with the rest distance d from it, less the mean (zero net
+/// momentum). Smooth on the scale of `width`, so it excites the low modes a drag excites
+/// and hardly the highest ones a per-vertex random velocity fills.
+void pokeVelocity(const VectorX& mass, const Points& position, Index centre, double width,
+                  double speed, const Vec3& direction, Points& velocity);
+
 }  // namespace zsculpt

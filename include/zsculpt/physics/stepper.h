@@ -31,7 +31,7 @@
 // fixed by the model, so a state is bit-identical whatever the thread count.
 
 #include <Eigen/Dense>
-#include <Eigen/SparseCholesky>
+#include <Eigen/SparseCore>
 #include <array>
 #include <cstdint>
 #include <memory>
@@ -81,6 +81,8 @@ struct StepperOptions {
 
 /// Below this many vertices the automatic thread count is one.
 inline constexpr Index kParallelMinVertices = 1024;
+/// implicit-euler: conjugate gradients stop at this residual relative to the right side.
+inline constexpr double kImplicitTolerance = 1e-10;
 /// The most threads the automatic choice uses for a model of this many vertices.
 int automaticThreads(Index vertices);
 
@@ -146,6 +148,8 @@ class Stepper {
   void stepExact(State& s, const Points& external, std::span<const double> share);
   void stepSymplecticEuler(State& s, const Points& external, std::span<const double> share);
   void stepImplicitEuler(State& s, const Points& external, std::span<const double> share);
+  struct Implicit;
+  void solveImplicit(Implicit& im) const;
   void setUpExact();
   // Default scheme: the affine fields' basis and what the filters need of it, all of it
   // (empty span) or the rows of these vertices and their one-ring.
@@ -215,7 +219,6 @@ class Stepper {
   Eigen::MatrixXd modal1_, modal2_, modal3_;
 
   // Implicit Euler: A = M + h D - h^2 J (3N x 3N).
-  struct Implicit;
   std::unique_ptr<Implicit> implicit_;
 };
 
