@@ -273,6 +273,8 @@ TEST(MeshImport, BadFilesGiveOneLineErrorsNamingTheFile) {
       // A GLB whose header declares 0 bytes: the chunk loop never ran, and assimp read the
       // JSON chunk anyway and allocated the 1.9 GB it claims.
       {data("glb_total_length_zero.glb"), "header declares 0 bytes, too few"},
+      // A vertex count of 63 digits: 4294967294 to assimp (32 bits, wrapping), read for 40 s.
+      {data("ply_count_of_63_digits.ply"), "the header's vertex count '9999"},
   };
   for (const Case& c : cases) {
     const std::string message = errorOf([&] { loadMesh(c.path); });
