@@ -4,9 +4,11 @@
 #include <gtest/gtest.h>
 #include <sys/wait.h>
 
+#include <cmath>
 #include <cstdlib>
 #include <filesystem>
 #include <fstream>
+#include <map>
 #include <nlohmann/json.hpp>
 #include <sstream>
 #include <string>
@@ -485,4 +487,45 @@ TEST_F(Cli, RunawayEnergyIsCaughtBeforeTheStateIsNonFinite) {
   // torus pushed and twisted.
   EXPECT_EQ(run("simulate builtin:grid --gravity 0,0,-9.81 --pin 0 --pin 17 --steps 3000").status, 0);
   EXPECT_EQ(run("simulate builtin:torus --force 3:0,0,5:0:1 --torque 50:0,0,2:0:2 --steps 3000").status, 0);
+}
+
+TEST_F(Cli, BenchPeersMeetTheErrorWithinStableStepsAgainstAConvergedReference) {
+  // docs/performance.md, "Peers": every scheme's trajectory is checked against a reference
+  // whose own error is a tenth of the target, never at a step beyond the scheme's stable
+  // limit, and a scheme that misses the target within the budget says so.
+  const Result r = run("bench --peers --quick --threads 1 --json");
+  ASSERT_EQ(r.status, 0) << r.err;
+  const auto rows = nlohmann::json::parse(r.out).at("peers");
+  ASSERT_EQ(rows.size(), 8u) << r.out;
+  const double sqrtThird = std::sqrt(1.0 / 3.0);  // symplectic Euler's limit over default's
+  std::map<std::string, double> defaultLimit;     // rows come default first, per model
+  for (const auto& row : rows) {
+    const std::string scheme = row.at("scheme").get<std::string>();
+    const std::string where = row.at("model").get<std::string>() + " " + scheme;
+    EXPECT_LE(row.at("reference_error").get<double>(), 1e-4) << where;
+    if (row.at("reached").get<bool>()) {
+      EXPECT_LE(row.at("error").get<double>(), 1e-3) << where;
+      EXPECT_GT(row.at("wall_seconds").get<double>(), 0.0) << where;
+    } else {
+      if (!row.at("error").is_null()) {  // null: diverged at every step tried
+        EXPECT_GT(row.at("error").get<double>(), 1e-3) << where;
+      }
+    }
+    // The stable limits: sqrt(12 / lambda_0) and sqrt(4 / lambda_0); none for implicit Euler.
+    const double dt = row.at("dt").get<double>();
+    if (!row.at("stable_limit").is_null()) {
+      EXPECT_LE(dt, 0.95 * row.at("stable_limit").get<double>() * (1 + 1e-12)) << where;
+    }
+    if (scheme == "default" || scheme == "symplectic-euler") {
+      EXPECT_TRUE(row.at("reached").get<bool>()) << where;
+    }
+    const std::string model = row.at("model").get<std::string>();
+    if (scheme == "default") defaultLimit[model] = row.at("stable_limit").get<double>();
+    if (scheme == "symplectic-euler") {
+      ASSERT_EQ(defaultLimit.count(model), 1u) << where;
+      EXPECT_NEAR(row.at("stable_limit").get<double>(), sqrtThird * defaultLimit[model],
+                  1e-12 * defaultLimit[model])
+          << where;
+    }
+  }
 }

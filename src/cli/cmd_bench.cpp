@@ -514,7 +514,7 @@ struct PeerResult {
   std::string model, scheme;
   Index vertices = 0;
   double dt = 0.0, tMax = 0.0, error = 0.0, seconds = 0.0, stepSeconds = 0.0;
-  double referenceError = 0.0;
+  double referenceError = 0.0, stableLimit = 0.0;
   long steps = 0;
   bool reached = true;
   std::string note;
@@ -576,6 +576,7 @@ std::vector<PeerResult> runPeersOn(const std::string& name, const Model& model,
     r.tMax = tMax;
     r.referenceError = referenceError;
     const double limit = stablePeriodLimit(scheme, lambda);
+    r.stableLimit = limit;
     long k = std::isfinite(limit)
                  ? std::max(1L, static_cast<long>(std::ceil(interval / (0.95 * limit))))
                  : 1L;
@@ -688,7 +689,8 @@ std::string runPeers(const Options& o) {
     const PeerResult& r = all[k];
     json << "    {\"model\": \"" << r.model << "\", \"vertices\": " << r.vertices
          << ", \"scheme\": \"" << r.scheme << "\", \"dt\": " << num(r.dt)
-         << ", \"dt_over_t_max\": " << num(r.dt / r.tMax) << ", \"steps\": " << r.steps
+         << ", \"dt_over_t_max\": " << num(r.dt / r.tMax)
+         << ", \"stable_limit\": " << num(r.stableLimit) << ", \"steps\": " << r.steps
          << ", \"error\": " << num(r.error) << ", \"wall_seconds\": " << num(r.seconds)
          << ", \"step_seconds\": " << num(r.stepSeconds)
          << ", \"reference_error\": " << num(r.referenceError)
