@@ -275,6 +275,10 @@ TEST(MeshImport, BadFilesGiveOneLineErrorsNamingTheFile) {
       {data("glb_total_length_zero.glb"), "header declares 0 bytes, too few"},
       // A vertex count of 63 digits: 4294967294 to assimp (32 bits, wrapping), read for 40 s.
       {data("ply_count_of_63_digits.ply"), "the header's vertex count '9999"},
+      // A skinned mesh whose skin has no inverseBindMatrices (a garbled key): assimp 5.2
+      // dereferences the missing accessor (a SEGV, Release too).
+      {data("gltf_skin_without_inverse_bind_matrices.gltf"),
+       "skin 0 (of node 0) has no inverseBindMatrices"},
   };
   for (const Case& c : cases) {
     const std::string message = errorOf([&] { loadMesh(c.path); });

@@ -803,6 +803,36 @@ void preflightGltf(std::istream& in, const std::string& name, bool binary, bool 
            size, 0);
     }
   }
+  // A skin's inverseBindMatrices may be left out (glTF 2.0, 5.28: identity matrices then),
+  // but assimp 5.2 reads them for every skinned node with a mesh without checking, a null
+  // dereference (tests/regressions/mesh/gltf_skin_without_inverse_bind_matrices_segv, found
+  // by the mesh fuzzer; Release too).
+  const nlohmann::json nodes = list("nodes"), skins = list("skins");
+  for (size_t n = 0; n < nodes.size(); ++n) {
+    if (!nodes[n].is_object() || !nodes[n].contains("mesh") || !nodes[n].contains("skin")) continue;
+    const std::string what = "node " + std::to_string(n);
+    const std::uint64_t skin = number(nodes[n], "skin", 0, what);
+    if (skin >= skins.size() || !skins[skin].is_object())
+      preflightError(name, what + " names skin " + std::to_string(skin) + ", which does not exist");
+    const std::string where = "skin " + std::to_string(skin) + " (of " + what + ")";
+    if (!skins[skin].contains("inverseBindMatrices"))
+      preflightError(name, where +
+                               " has no inverseBindMatrices, which assimp 5.2 needs (the "
+                               "glTF specification lets them default to identities)");
+    const std::uint64_t matrices = number(skins[skin], "inverseBindMatrices", 0, where);
+    if (matrices >= accessors.size())
+      preflightError(name, where + ": inverseBindMatrices names an accessor that does not exist");
+    // One matrix per joint: assimp reads as many as there are joints.
+    const auto joints = skins[skin].find("joints");
+    const std::uint64_t jointCount =
+        joints != skins[skin].end() && joints->is_array() ? joints->size() : 0;
+    const std::uint64_t count =
+        number(accessors[matrices], "count", 0, "accessor " + std::to_string(matrices));
+    if (count < jointCount)
+      preflightError(name, where + " has " + std::to_string(jointCount) +
+                               " joints but its inverseBindMatrices accessor holds " +
+                               std::to_string(count) + " matrices");
+  }
 }
 
 void preflight(std::istream& in, const std::string& ext, const std::string& name,
