@@ -228,15 +228,6 @@ Model uniformModel(Mesh mesh, double mass, double stiffness, double angular) {
   return Model::fromMesh(std::move(mesh), u);
 }
 
-double meanEdgeLength(const Mesh& mesh) {
-  double sum = 0.0;
-  for (Index e = 0; e < mesh.numEdges(); ++e) {
-    const auto [i, j] = mesh.edge(e);
-    sum += (mesh.positions().row(i) - mesh.positions().row(j)).norm();
-  }
-  return sum / static_cast<double>(std::max<Index>(1, mesh.numEdges()));
-}
-
 Mesh torusII() {
   // Table 1: "the twice Doo-Sabin subdivided Torus-I", 1600 / 3200 / 1600.
   SubdivisionOptions sub;
@@ -690,7 +681,7 @@ std::string runPeers(const Options& o) {
     // reference of hours on this machine.
     const Index side = o.quick ? 40 : 316;
     Mesh torus = makeTorus(side, side);
-    torus.setPositions(torus.positions() * (meanEdgeLength(torusII()) / meanEdgeLength(torus)));
+    torus.setPositions(torus.positions() * (torusII().meanEdgeLength() / torus.meanEdgeLength()));
     const Model m = uniformModel(std::move(torus), 0.01, 9.5, 0.01);
     const auto r = runPeersOn("torus " + std::to_string(side) + "x" + std::to_string(side), m, o,
                               horizon, interval, budget);

@@ -570,8 +570,8 @@ void preflightPly(std::istream& in, const std::string& name, std::uintmax_t size
       for (const char c : digits) {
         if (c < '0' || c > '9') break;
         if (count > (std::numeric_limits<std::uintmax_t>::max() - 9) / 10)
-          preflightError(name, "the header's " + printable(element, 40) + " count '" +
-                                   printable(digits, 40) + "' is out of range");
+          preflightError(name, "the header's " + printable(element) + " count '" +
+                                   printable(digits) + "' is out of range");
         count = 10 * count + static_cast<std::uintmax_t>(c - '0');
       }
       checkDeclaredCount(name, count, element + " elements", 1, size);
