@@ -636,6 +636,29 @@ TEST(ForceKernel, WithoutAngleSpringsEqualsTheReferenceBitForBit) {
     const Points x = deformed(model, 0.2, 21);
     EXPECT_TRUE(kernelForces(model, x) == referenceForces(model, x));
   }
+  // Big enough for two blocks of three edge groups each (ForceKernel::radialOnlyBlock), on
+  // one thread and on two.
+  Model big = withAngles(makeTorus(90, 50), 0.0);
+  big.properties.stiffness[2000] = 0.0;
+  big.properties.restLength[5000] = 0.0;
+  const Points x = deformed(big, 0.2, 25);
+  const Points expected = referenceForces(big, x);
+  EXPECT_TRUE(kernelForces(big, x, 1) == expected);
+  EXPECT_TRUE(kernelForces(big, x, 2) == expected);
+}
+
+TEST(ForceKernel, BlocksWithAndWithoutAngleSpringsTogether) {
+  // Angle springs in the first block only: the second evaluates its edges once and still
+  // receives the angle forces the first block's centres put on its vertices.
+  Model model = withAngles(makeTorus(90, 50), 0.7);
+  const Index n = model.mesh.numVertices();
+  for (Index v = 0; v < n; ++v)
+    if (v < n / 2 - 100 || v >= n / 2) model.properties.angularStiffness[v] = 0.0;
+  const Points x = deformed(model, 0.2, 26);
+  const Points expected = referenceForces(model, x);
+  const Points one = kernelForces(model, x, 1);
+  EXPECT_LT(relativeDifference(one, expected), 1e-13);
+  EXPECT_TRUE(kernelForces(model, x, 2) == one);
 }
 
 TEST(ForceKernel, WithAngleSpringsAgreesWithTheReference) {

@@ -221,6 +221,9 @@ bool inParallel() {
 constexpr Index kBlockVertices = 8192;
 // Shortest run of equal-degree vertices worth the transposed angle path.
 constexpr Index kMinRun = 8;
+// Vertices per edge group of a block without angle springs: its edges' arms and forces
+// (seven arrays of about twice as many doubles) stay in the core's L2 cache.
+constexpr Index kGroupVertices = 1024;
 
 constexpr double kPi = std::numbers::pi;
 constexpr double kHalfPi = std::numbers::pi / 2;
@@ -244,8 +247,9 @@ inline double select(bool cond, double a, double b) {
 // The kernels below are built twice: for AVX2 (4 doubles at a time; chosen at load time
 // where the processor has it) and for the x86-64 baseline. Neither contracts to FMA and both
 // do the same operations in the same order, so they round alike: the forces do not depend
-// on the machine's choice. Square roots go through Eigen's packet sqrt in a pass of their
-// own: std::sqrt in a loop keeps its errno path, and the loop scalar.
+// on the machine's choice. forces.cpp is built without errno for the math functions
+// (CMakeLists.txt), so std::sqrt in a loop vectorises; other paths take theirs in a pass of
+// Eigen's packet sqrt (the same correctly rounded result).
 // Sanitized builds (CMakeLists.txt) define ZSCULPT_NO_TARGET_CLONES: no ifunc resolvers.
 #ifdef ZSCULPT_NO_TARGET_CLONES
 #define ZSCULPT_KERNEL
@@ -362,6 +366,24 @@ ZSCULPT_KERNEL void radialOnlyBatch(Index count, const Index* __restrict edge,
   }
 }
 
+// The arms r_second - r_first of a group's edges and their lengths (the same sums as
+// slotArms', so that the edge's force on its first end is the gather path's bit for bit).
+ZSCULPT_KERNEL void edgeArms(Index count, const Index* __restrict first,
+                             const Index* __restrict second, const double* __restrict r,
+                             double* __restrict ax, double* __restrict ay, double* __restrict az,
+                             double* __restrict length) {
+#pragma omp simd
+  for (Index j = 0; j < count; ++j) {
+    const Index v = first[j], w = second[j];
+    const double ux = r[3 * w] - r[3 * v], uy = r[3 * w + 1] - r[3 * v + 1],
+                 uz = r[3 * w + 2] - r[3 * v + 2];
+    ax[j] = ux;
+    ay[j] = uy;
+    az[j] = uz;
+    length[j] = std::sqrt(ux * ux + uy * uy + uz * uz);
+  }
+}
+
 // Cosine and squared sine of the angle between the unit arms p[k] and q[k].
 ZSCULPT_KERNEL void angleCosSin(Index m, const Index* __restrict p, const Index* __restrict q,
                                 const double* __restrict ax, const double* __restrict ay,
@@ -454,12 +476,11 @@ ZSCULPT_KERNEL double runForces(Index pairs, Index count, const Index* __restric
 }
 
 // Arms of a uniform chunk (L = count vertices from c0, of one degree), by slot: arm a of
-// vertex i at a L + i is r_w - r_v, its squared length beside it (the same sums as
-// Vec3::norm's).
-ZSCULPT_KERNEL void slotArms(Index degree, Index count, Index c0,
-                             const Index* __restrict neighbour, const double* __restrict r,
-                             double* __restrict ax, double* __restrict ay,
-                             double* __restrict az, double* __restrict squared) {
+// vertex i at a L + i is r_w - r_v, its length beside it (the same sums as Vec3::norm's).
+ZSCULPT_KERNEL void slotArms(Index degree, Index count, Index c0, const Index* __restrict neighbour,
+                             const double* __restrict r, double* __restrict ax,
+                             double* __restrict ay, double* __restrict az,
+                             double* __restrict length) {
   for (Index a = 0; a < degree; ++a) {
     const Index o = a * count;
 #pragma omp simd
@@ -470,7 +491,7 @@ ZSCULPT_KERNEL void slotArms(Index degree, Index count, Index c0,
       ax[o + i] = ux;
       ay[o + i] = uy;
       az[o + i] = uz;
-      squared[o + i] = ux * ux + uy * uy + uz * uz;
+      length[o + i] = std::sqrt(ux * ux + uy * uy + uz * uz);
     }
   }
 }
@@ -662,6 +683,49 @@ ForceKernel::ForceKernel(const Model& model, int maxThreads) {
     }
   }
   maxAngles_ = static_cast<Index>(maxAngles);
+  // Edge groups for blocks without angle springs.
+  blockGroup_.assign(1, 0);
+  groupStart_.clear();
+  groupEdgeStart_.assign(1, 0);
+  groupEdge_.clear();
+  armSlot_.assign(neighbours.indices.size(), 0);
+  size_t maxGroupEdges = 0;
+  {
+    std::vector<Index> groupSlot(static_cast<size_t>(mesh.numEdges()), -1);
+    for (Index b = 0; b < blocks; ++b) {
+      const Index v0 = blockStart_[static_cast<size_t>(b)];
+      const Index v1 = blockStart_[static_cast<size_t>(b) + 1];
+      for (Index g0 = v0; g0 < v1; g0 += kGroupVertices) {
+        const Index g1 = std::min(g0 + kGroupVertices, v1);
+        const size_t begin = groupEdge_.size();
+        groupEdge_.insert(groupEdge_.end(), meshEdge + off[g0], meshEdge + off[g1]);
+        std::sort(groupEdge_.begin() + static_cast<std::ptrdiff_t>(begin), groupEdge_.end());
+        groupEdge_.erase(
+            std::unique(groupEdge_.begin() + static_cast<std::ptrdiff_t>(begin), groupEdge_.end()),
+            groupEdge_.end());
+        for (size_t k = begin; k < groupEdge_.size(); ++k)
+          groupSlot[static_cast<size_t>(groupEdge_[k])] = static_cast<Index>(k - begin);
+        for (Index v = g0; v < g1; ++v)
+          for (Index h = off[v]; h < off[v + 1]; ++h) {
+            const Index e = meshEdge[h];
+            const Index slotOfEdge = groupSlot[static_cast<size_t>(e)];
+            armSlot_[static_cast<size_t>(h)] = mesh.edge(e)[0] == v ? slotOfEdge : ~slotOfEdge;
+          }
+        groupStart_.push_back(g0);
+        groupEdgeStart_.push_back(static_cast<Index>(groupEdge_.size()));
+        maxGroupEdges = std::max(maxGroupEdges, groupEdge_.size() - begin);
+      }
+      blockGroup_.push_back(static_cast<Index>(groupStart_.size()));
+    }
+    groupStart_.push_back(n);
+  }
+  groupFirst_.resize(groupEdge_.size());
+  groupSecond_.resize(groupEdge_.size());
+  for (size_t k = 0; k < groupEdge_.size(); ++k) {
+    const auto ends = mesh.edge(groupEdge_[k]);
+    groupFirst_[k] = ends[0];
+    groupSecond_[k] = ends[1];
+  }
   // Canonical tables for every degree up to the largest.
   Index maxDegree = 0;
   for (Index v = 0; v < n; ++v) maxDegree = std::max(maxDegree, off[v + 1] - off[v]);
@@ -692,9 +756,10 @@ ForceKernel::ForceKernel(const Model& model, int maxThreads) {
   scratch_.resize(static_cast<size_t>(threads));
   for (Scratch& s : scratch_) {
     s.acc.resize(maxAccumulator);
-    for (auto* v : {&s.ax, &s.ay, &s.az, &s.length, &s.invLength, &s.gx, &s.gy, &s.gz, &s.tx,
-                    &s.ty, &s.tz, &s.tl})
-      v->resize(maxArms);
+    // The arms, lengths and radial forces also serve the edge groups.
+    for (auto* v : {&s.ax, &s.ay, &s.az, &s.length, &s.gx, &s.gy, &s.gz})
+      v->resize(std::max(maxArms, maxGroupEdges));
+    for (auto* v : {&s.invLength, &s.tx, &s.ty, &s.tz, &s.tl}) v->resize(maxArms);
     for (auto* v : {&s.armP, &s.armQ}) v->resize(maxAngles);
     for (auto* v : {&s.rest, &s.cosine, &s.sine}) v->resize(maxAngles);
     for (auto* v : {&s.fx, &s.fy, &s.fz}) v->resize(2 * maxAngles);
@@ -724,10 +789,13 @@ void ForceKernel::propertiesChanged(const Model& model, std::span<const Index> v
 
 size_t ForceKernel::bytes() const {
   size_t total = 0;
-  for (const auto* v : {&blockStart_, &blockChunk_, &chunkStart_, &chunkDegree_, &neighbour_,
-                        &edge_, &target_, &haloStart_, &incomingStart_, &incomingRow_,
-                        &incomingHalo_, &incomingBlock_, &angleArm_, &pairStart_, &pairA_,
-                        &pairB_, &termStart_, &armTermStart_, &armTerm_})
+  for (const auto* v :
+       {&blockStart_,     &blockChunk_,  &chunkStart_,   &chunkDegree_,   &neighbour_,
+        &edge_,           &target_,      &haloStart_,    &blockGroup_,    &groupStart_,
+        &groupEdgeStart_, &groupEdge_,   &groupFirst_,   &groupSecond_,   &armSlot_,
+        &incomingStart_,  &incomingRow_, &incomingHalo_, &incomingBlock_, &angleArm_,
+        &pairStart_,      &pairA_,       &pairB_,        &termStart_,     &armTermStart_,
+        &armTerm_})
     total += v->capacity() * sizeof(Index);
   total += halo_.capacity() * sizeof(double) + blockHasAngles_.capacity() +
            static_cast<size_t>(edgeKappa_.size()) * sizeof(double);
@@ -781,6 +849,16 @@ void ForceKernel::scatterBlock(const Model& model, const Points& position, Point
   const Index v0 = blockStart_[static_cast<size_t>(block)];
   const Index v1 = blockStart_[static_cast<size_t>(block) + 1];
   const Index length = v1 - v0;
+  {
+    const double* kappaTheta = prop.angularStiffness.data();
+    bool blockAngles = false;
+    for (Index v = v0; v < v1 && !blockAngles; ++v) blockAngles = kappaTheta[v] != 0.0;
+    if (!blockAngles) {
+      radialOnlyBlock(model, position, force, block, s);
+      blockHasAngles_[static_cast<size_t>(block)] = 0;
+      return;
+    }
+  }
   const Index haloBegin = haloStart_[static_cast<size_t>(block)];
   const Index haloLength = haloStart_[static_cast<size_t>(block) + 1] - haloBegin;
   double* acc = s.acc.data();
@@ -903,9 +981,9 @@ void ForceKernel::scatterBlock(const Model& model, const Points& position, Point
           len[j] = ux * ux + uy * uy + uz * uz;
         }
       }
+      Eigen::Map<Eigen::ArrayXd> lengths(len, arms);
+      lengths = lengths.sqrt();
     }
-    Eigen::Map<Eigen::ArrayXd> lengths(len, arms);
-    lengths = lengths.sqrt();
     bool chunkAngles = false;
     for (Index v = c0; v < c1 && !chunkAngles; ++v) chunkAngles = kappaTheta[v] != 0.0;
     if (chunkAngles)
@@ -1069,6 +1147,55 @@ void ForceKernel::scatterBlock(const Model& model, const Points& position, Point
               acc + 3 * static_cast<size_t>(length + haloLength),
               halo_.data() + 3 * static_cast<size_t>(haloBegin));
   blockHasAngles_[static_cast<size_t>(block)] = anyAngle ? 1 : 0;
+}
+
+void ForceKernel::radialOnlyBlock(const Model& model, const Points& position, Points& force,
+                                  Index block, Scratch& s) const {
+  // The radial springs (section 5.1) of each edge once: its force on the first end,
+  // kappa (l - lambda) / l (r_second - r_first), the gather path's rounding for rounding
+  // (and minus it, exactly, on the second end). Each vertex adds its edges' forces in arm
+  // order, as accumulateInternalForces does: bit-identical to the reference.
+  const Index* off = model.mesh.vertexNeighborTable().offsets.data();
+  const double* r = position.data();
+  double* f = force.data();
+  double* ax = s.ax.data();
+  double* ay = s.ay.data();
+  double* az = s.az.data();
+  double* len = s.length.data();
+  const double* gx = s.gx.data();
+  const double* gy = s.gy.data();
+  const double* gz = s.gz.data();
+  for (Index g = blockGroup_[static_cast<size_t>(block)];
+       g < blockGroup_[static_cast<size_t>(block) + 1]; ++g) {
+    const Index e0 = groupEdgeStart_[static_cast<size_t>(g)];
+    const Index count = groupEdgeStart_[static_cast<size_t>(g) + 1] - e0;
+    edgeArms(count, groupFirst_.data() + e0, groupSecond_.data() + e0, r, ax, ay, az, len);
+    radialOnlyBatch(count, groupEdge_.data() + e0, edgeKappa_.data(),
+                    model.properties.restLength.data(), ax, ay, az, len, s.gx.data(), s.gy.data(),
+                    s.gz.data());
+    for (Index v = groupStart_[static_cast<size_t>(g)]; v < groupStart_[static_cast<size_t>(g) + 1];
+         ++v) {
+      double fx = 0.0, fy = 0.0, fz = 0.0;
+      for (Index h = off[v]; h < off[v + 1]; ++h) {
+        const Index slot = armSlot_[static_cast<size_t>(h)];
+        if (slot >= 0) {
+          const size_t j = static_cast<size_t>(slot);
+          fx += gx[j];
+          fy += gy[j];
+          fz += gz[j];
+        } else {
+          const size_t j = static_cast<size_t>(~slot);
+          fx -= gx[j];
+          fy -= gy[j];
+          fz -= gz[j];
+        }
+      }
+      double* row = f + 3 * static_cast<size_t>(v);
+      row[0] = fx;
+      row[1] = fy;
+      row[2] = fz;
+    }
+  }
 }
 
 Index ForceKernel::uniformVertices() const {

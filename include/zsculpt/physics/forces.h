@@ -138,6 +138,9 @@ class ForceKernel {
   };
   void scatterBlock(const Model& model, const Points& position, Points& force, Index block,
                     Scratch& scratch);
+  /// scatterBlock for a block with no angle spring centred in it: every edge once.
+  void radialOnlyBlock(const Model& model, const Points& position, Points& force, Index block,
+                       Scratch& scratch) const;
 
   std::vector<Index> blockStart_{0};
   /// Chunks of at most chunkVertices_ consecutive vertices, per block (blockChunk_): their
@@ -149,6 +152,14 @@ class ForceKernel {
   /// across goes in the block's accumulator (own rows first, then the halo).
   std::vector<Index> neighbour_, edge_, target_;
   std::vector<Index> haloStart_{0};
+  /// A block without angle springs evaluates each edge once instead of from both ends (half
+  /// the arms, square roots and divisions), in groups of consecutive vertices (blockGroup_
+  /// per block, groupStart_ their first vertex): each group's edges touching its vertices,
+  /// ascending (groupEdge_, CSR by groupEdgeStart_), with their ends as Mesh::edges() has
+  /// them, and for every mesh half-edge of the vertex v the slot of its edge in v's group,
+  /// or ~slot when v is the edge's second end (the force on it is then minus the edge's).
+  std::vector<Index> blockGroup_{0}, groupStart_, groupEdgeStart_{0};
+  std::vector<Index> groupEdge_, groupFirst_, groupSecond_, armSlot_;
   /// Per block, what other blocks left for its vertices: (local row, halo position, source
   /// block), sorted by row then source block.
   std::vector<Index> incomingStart_{0};
