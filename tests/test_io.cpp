@@ -279,6 +279,13 @@ TEST(MeshImport, BadFilesGiveOneLineErrorsNamingTheFile) {
       // dereferences the missing accessor (a SEGV, Release too).
       {data("gltf_skin_without_inverse_bind_matrices.gltf"),
        "skin 0 (of node 0) has no inverseBindMatrices"},
+      // Strips and fans of fewer than 2 vertices: assimp 5.2 counts their faces as count - 2
+      // in 32 bits and allocates 4 billion of them (64 GB).
+      {data("gltf_triangle_strip_without_positions.gltf"),
+       "mesh 0 primitive 0 is a triangle strip (mode 5) of 0 positions, which assimp 5.2 reads "
+       "as 4294967294 faces"},
+      {data("gltf_triangle_fan_of_one_index.gltf"),
+       "triangle fan (mode 6) of 1 indices, which assimp 5.2 reads as 4294967295 faces"},
   };
   for (const Case& c : cases) {
     const std::string message = errorOf([&] { loadMesh(c.path); });
