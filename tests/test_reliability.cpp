@@ -411,6 +411,7 @@ struct SoakOptions {
   double forceScale = 0.02;       // N
   double torqueScale = 0.002;     // N m
   double dragSpeed = 0.05;        // m/s, the RMS speed of a dragged target
+  long trace = 0;                 // print the energy and the shape every this many cycles
   double angularStiffness = 0.0;  // N m/rad^2 (Table 1's Torus-II has none)
   double damping = 0.0;           // kg/s; with damping the energy only has an upper bound
   bool driftFilter = true;        // StepperOptions::driftFilter (braced models only)
@@ -566,6 +567,29 @@ std::vector<std::pair<std::string, Storm>> stormKinds() {
   };
 }
 
+/// One line of a soak's trace: the energy against the work, the fastest vertex's travel per
+/// cycle, and how far the springs are from their rest lengths (the largest relative change
+/// of an edge's length per cycle, from the velocities).
+void traceSoak(const Simulation& sim, const SoakLog& log, long cycle, double energy) {
+  const Mesh& mesh = sim.model().mesh;
+  const Points& r = sim.state().position;
+  const Points& v = sim.state().velocity;
+  double travel = 0.0, shortest = 1e300, longest = 0.0, rate = 0.0;
+  for (Index i = 0; i < mesh.numVertices(); ++i)
+    travel = std::max(travel, v.row(i).norm() * sim.period());
+  for (Index e = 0; e < mesh.numEdges(); ++e) {
+    const auto [a, b] = mesh.edges()[static_cast<size_t>(e)];
+    const double length = (r.row(a) - r.row(b)).norm();
+    const double ratio = length / sim.model().properties.restLength[e];
+    shortest = std::min(shortest, ratio);
+    longest = std::max(longest, ratio);
+    rate = std::max(rate, (v.row(a) - v.row(b)).norm() * sim.period() / length);
+  }
+  std::cout << "soak trace: cycle " << cycle << " E " << energy << " W " << log.work << " E-(E0+W) "
+            << energy - (log.e0 + log.work) << " max |v|T " << travel << " L/L0 in [" << shortest
+            << ", " << longest << "] max |dv|T/L " << rate << "\n";
+}
+
 /// Torus-II of Table 1 (1600 vertices, mass 0.01, stiffness 9.5) at dtRatio T_max.
 SoakLog soak(const SoakOptions& o) {
   UniformProperties values;
@@ -639,6 +663,7 @@ SoakLog soak(const SoakOptions& o) {
       log.cycles = k;
       return log;
     }
+    if (o.trace > 0 && k % o.trace == 0) traceSoak(sim, log, k, e);
     log.energyMax = std::max(log.energyMax, e);
     log.worstExcess = std::max(log.worstExcess, e - (log.e0 + log.work));
     if (log.firstExcessCycle < 0 && log.worstExcess > 0.01 * (log.e0 + log.inflow))
@@ -670,6 +695,7 @@ TEST(Soak, TorusTwoAtNinetyFivePercentOfTMaxUnderAStormOfLoadsPinsDragsAndEdits)
   if (const char* k = std::getenv("ZSCULPT_SOAK_KINDS")) o.kinds = k;
   if (const char* d = std::getenv("ZSCULPT_SOAK_DAMPING")) o.damping = std::atof(d);
   if (const char* f = std::getenv("ZSCULPT_SOAK_DRIFT_FILTER")) o.driftFilter = std::atoi(f) != 0;
+  if (const char* t = std::getenv("ZSCULPT_SOAK_TRACE")) o.trace = std::atol(t);
   const auto start = std::chrono::steady_clock::now();
   const SoakLog log = soak(o);
   const double wall =
