@@ -870,7 +870,11 @@ void preflightGltf(std::istream& in, const std::string& name, bool binary, bool 
       const nlohmann::json& primitive = (*primitives)[p];
       if (!primitive.is_object()) continue;
       const std::string what = "mesh " + meshName + " primitive " + std::to_string(p);
-      const std::uint64_t mode = number(primitive, "mode", 4, what);
+      // (A mode that is not an integer is assimp's to judge.)
+      const auto modeField = primitive.find("mode");
+      const std::uint64_t mode = modeField == primitive.end() || !modeField->is_number_unsigned()
+                                     ? 4
+                                     : modeField->get<std::uint64_t>();
       // Faces: count - lost, in assimp's 32 bits.
       const std::uint64_t lost = mode == 3 ? 1 : mode == 5 || mode == 6 ? 2 : 0;
       if (lost == 0) continue;
