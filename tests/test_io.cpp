@@ -286,6 +286,14 @@ TEST(MeshImport, BadFilesGiveOneLineErrorsNamingTheFile) {
        "as 4294967294 faces"},
       {data("gltf_triangle_fan_of_one_index.gltf"),
        "triangle fan (mode 6) of 1 indices, which assimp 5.2 reads as 4294967295 faces"},
+      // PLY lists longer than the file: assimp 5.2 sizes the list (8 bytes an item) before
+      // reading it, 32 GB for these; in ASCII it reads the count into 32 bits whatever its
+      // declared type (uchar here).
+      {data("ply_ascii_list_count_past_the_end.ply"),
+       "the list in face 0 (at byte 182) counts 4294967295 items, more than the 7 bytes left in "
+       "the file hold"},
+      {data("ply_binary_list_count_past_the_end.ply"),
+       "the list in face 0 (at byte 204) counts 4294967295 items, more than the 16 bytes left"},
   };
   for (const Case& c : cases) {
     const std::string message = errorOf([&] { loadMesh(c.path); });

@@ -537,10 +537,289 @@ bool startsWithPlyMagic(std::string_view text) {
   return lower(text[0]) == 'p' && lower(text[1]) == 'l' && lower(text[2]) == 'y';
 }
 
+// A PLY header as assimp 5.2 reads it (PlyParser.cpp): elements with their 32-bit counts
+// and the properties that follow each on consecutive lines; the first line that is not a
+// property of a known type (a comment, an unknown type) ends the element's list.
+struct PlyType {
+  enum Kind { kNone, kUnsigned, kSigned, kReal };
+  int bytes = 0;
+  Kind kind = kNone;  // kNone: not a type assimp knows
+};
+struct PlyProperty {
+  bool list = false;
+  PlyType count, item;
+};
+struct PlyElement {
+  std::string name;
+  std::uint32_t count = 0;
+  bool parsedAsText = false;  // a semantic assimp reads in ASCII files
+  std::vector<PlyProperty> properties;
+};
+
+PlyType plyType(const std::string& word) {
+  if (word == "char" || word == "int8") return {1, PlyType::kSigned};
+  if (word == "uchar" || word == "uint8") return {1, PlyType::kUnsigned};
+  if (word == "short" || word == "int16") return {2, PlyType::kSigned};
+  if (word == "ushort" || word == "uint16") return {2, PlyType::kUnsigned};
+  if (word == "int" || word == "int32") return {4, PlyType::kSigned};
+  if (word == "uint" || word == "uint32") return {4, PlyType::kUnsigned};
+  if (word == "float" || word == "float32") return {4, PlyType::kReal};
+  if (word == "double" || word == "double64" || word == "float64") return {8, PlyType::kReal};
+  return {};
+}
+
+// A list count as assimp 5.2 turns it into an unsigned int (ConvertTo<unsigned int>): integers
+// wrap to 32 bits (a negative one becomes huge); a real one is converted, and one outside
+// [0, 2^32) is returned as 2^32 (beyond any file here: refused).
+std::uint64_t plyListCount(PlyType type, std::uint64_t bits, double real) {
+  if (type.kind == PlyType::kReal) {
+    if (!(real >= 0.0 && real < 4294967296.0)) return std::uint64_t{1} << 32;
+    return static_cast<std::uint64_t>(real);
+  }
+  return bits & 0xffffffffu;
+}
+
+// Assimp's line reading for ASCII PLY (IOStreamBuffer::getNextLine, 5.2): a line ends at
+// '\r', '\n', '\f' or '\0' and that one character is skipped; a line that starts at such a
+// character first skips through the next '\n'. The line is copied over the same buffer
+// each time, followed by '\n', and the buffer keeps what longer lines left behind it: the
+// parser can run past a short line's end into them (SkipSpacesAndLineEnd between
+// properties), so they are kept here too.
+class PlyTextLines {
+ public:
+  explicit PlyTextLines(std::istream& in) : in_(in) {}
+  /// The next line into buffer(); false at the end of the text.
+  bool next() {
+    if (eof()) return false;
+    if (isLineEnd(peek())) {
+      while (!eof() && get() != '\n') {
+      }
+      if (eof()) return false;
+    }
+    size_t length = 0;
+    lineStart_ = offset_;
+    while (!eof() && !isLineEnd(peek())) {
+      if (length + 2 > buffer_.size()) buffer_.resize(2 * buffer_.size() + 64, '\0');
+      buffer_[length++] = get();
+    }
+    if (length + 2 > buffer_.size()) buffer_.resize(2 * buffer_.size() + 64, '\0');
+    buffer_[length] = '\n';
+    lineLength_ = length;
+    if (!eof()) (void)get();
+    return true;
+  }
+  /// The line buffer: the line, '\n', then what earlier lines left, then '\0's.
+  const std::string& buffer() const { return buffer_; }
+  /// Where the line starts in the text, and its length.
+  std::uintmax_t lineStart() const { return lineStart_; }
+  size_t lineLength() const { return lineLength_; }
+  static bool isLineEnd(char c) { return c == '\r' || c == '\n' || c == '\f' || c == '\0'; }
+
+ private:
+  bool eof() {
+    if (at_ < chunk_.size()) return false;
+    chunk_.resize(65536);
+    in_.read(chunk_.data(), static_cast<std::streamsize>(chunk_.size()));
+    chunk_.resize(static_cast<size_t>(in_.gcount()));
+    at_ = 0;
+    return chunk_.empty();
+  }
+  char peek() const { return chunk_[at_]; }
+  char get() {
+    ++offset_;
+    return chunk_[at_++];
+  }
+  std::istream& in_;
+  std::string chunk_;
+  size_t at_ = 0;
+  std::uintmax_t offset_ = 0, lineStart_ = 0;
+  size_t lineLength_ = 0;
+  std::string buffer_ = std::string(64, '\0');
+};
+
+// Assimp 5.2 sizes every list by the count it reads before reading the list
+// (PropertyInstance::ParseInstance: avList.resize(count), 8 bytes an item): in ASCII the
+// count is read as a 32-bit number whatever its declared type, so a count of 74 digits in a
+// 488-byte file made it allocate 11 GB and take 90 s
+// (tests/regressions/mesh/ply_ascii_list_count_of_74_digits_oom, found by the mesh fuzzer);
+// in binary a 4-byte (or negative) count asks for up to 32 GB. The body is walked as assimp
+// walks it and every list count checked against the bytes left in the file: a list cannot
+// hold more items than that.
+void preflightPlyBody(std::istream& in, const std::string& name, std::uintmax_t size,
+                      const std::vector<PlyElement>& elements, bool ascii, bool bigEndian) {
+  const std::streamoff start = in.tellg();
+  if (start < 0) return;
+  const std::uintmax_t bodyStart = static_cast<std::uintmax_t>(start);
+  // A list of `count` items of `bytes` bytes (in binary; 1 for text, where an item takes a
+  // byte at least) whose count was read at byte `at`.
+  auto check = [&](const PlyElement& element, std::uint32_t instance, std::uint64_t count,
+                   std::uintmax_t at, std::uintmax_t bytes) {
+    const std::uintmax_t left = size > at ? size - at : 0;
+    if (count <= left / bytes) return;
+    preflightError(name, "the list in " + printable(element.name) + " " + std::to_string(instance) +
+                             " (at byte " + std::to_string(at) + ") counts " +
+                             std::to_string(count) + " items, more than the " +
+                             std::to_string(left) + " bytes left in the file hold");
+  };
+  if (ascii) {
+    // Elements of a known semantic (vertex, face, tristrips, edge, material) are parsed one
+    // line per instance (PLY::PropertyInstance::ParseInstance); the others' lines skipped.
+    PlyTextLines lines(in);
+    for (const PlyElement& element : elements)
+      for (std::uint32_t k = 0; k < element.count; ++k) {
+        if (!lines.next()) return;
+        if (!element.parsedAsText) continue;
+        const std::string& b = lines.buffer();
+        size_t p = 0;
+        auto at = [&](size_t i) { return i < b.size() ? b[i] : '\0'; };
+        auto skipSpaces = [&] {  // Assimp::SkipSpaces
+          while (at(p) == ' ' || at(p) == '\t') ++p;
+          return !PlyTextLines::isLineEnd(at(p));
+        };
+        auto digits = [&] {  // strtoul10
+          std::uint64_t value = 0;
+          while (at(p) >= '0' && at(p) <= '9')
+            value = (value * 10 + static_cast<std::uint64_t>(at(p++) - '0')) & 0xffffffffu;
+          return value;
+        };
+        // One value of the type (PropertyInstance::ParseValue); false where assimp would
+        // throw (a real that does not start like a number: the import fails anyway).
+        auto value = [&](PlyType type, std::uint64_t& bits, double& real) {
+          bits = 0;
+          real = 0.0;
+          if (type.kind == PlyType::kUnsigned) {
+            bits = digits();
+          } else if (type.kind == PlyType::kSigned) {
+            const bool negative = at(p) == '-';
+            if (at(p) == '-' || at(p) == '+') ++p;
+            bits = digits();
+            if (negative) bits = (0x100000000u - bits) & 0xffffffffu;
+          } else {
+            // fast_atoreal_move: a sign, then "nan", "inf" or "infinity", or digits with a
+            // '.' or ',' and an exponent; it throws on anything else.
+            const size_t first = p;
+            if (at(p) == '-' || at(p) == '+') ++p;
+            auto word = [&](const char* w) {
+              for (size_t i = 0; w[i] != '\0'; ++i)
+                if (std::tolower(static_cast<unsigned char>(at(p + i))) != w[i]) return false;
+              return true;
+            };
+            if (word("nan")) {
+              p += 3;
+              return true;
+            }
+            if (word("inf")) {
+              p += word("infinity") ? 8 : 3;
+              real = std::numeric_limits<double>::infinity();
+              return true;
+            }
+            auto digit = [&](size_t i) { return at(i) >= '0' && at(i) <= '9'; };
+            const bool number = digit(p) || ((at(p) == '.' || at(p) == ',') && digit(p + 1));
+            if (!number) return false;
+            while (digit(p)) ++p;
+            if ((at(p) == '.' || at(p) == ',') && digit(p + 1)) ++p;
+            while (digit(p)) ++p;
+            if (at(p) == 'e' || at(p) == 'E') {
+              ++p;
+              if (at(p) == '-' || at(p) == '+') ++p;
+              while (at(p) >= '0' && at(p) <= '9') ++p;
+            }
+            std::string text(b, first, p - first);
+            std::replace(text.begin(), text.end(), ',', '.');
+            real = std::strtod(text.c_str(), nullptr);
+          }
+          return true;
+        };
+        for (const PlyProperty& property : element.properties) {
+          if (!skipSpaces()) continue;  // "Unable to parse property instance": the next one
+          std::uint64_t bits = 0;
+          double real = 0.0;
+          if (!value(property.list ? property.count : property.item, bits, real)) return;
+          if (property.list) {
+            const std::uint64_t count = plyListCount(property.count, bits, real);
+            // (Past the line's end the bytes are an earlier line's: the end is then named.)
+            check(element, k, count,
+                  bodyStart + lines.lineStart() + std::min(p, lines.lineLength()), 1);
+            bool stopped = false;
+            for (std::uint64_t item = 0; item < count && !stopped; ++item) {
+              if (!skipSpaces()) {
+                stopped = true;
+                break;
+              }
+              if (!value(property.item, bits, real)) return;
+            }
+            if (stopped) continue;  // ParseInstance returned false: no line-end skip
+          }
+          // SkipSpacesAndLineEnd: spaces and line ends, up to a '\0'.
+          while (at(p) == ' ' || at(p) == '\t' || at(p) == '\r' || at(p) == '\n') ++p;
+        }
+      }
+    return;
+  }
+  // Binary: every element, each property at its size; a list's count in its own type. The
+  // stream moves forward only (ignore for short skips: a seek may cost a system call).
+  std::uintmax_t at = bodyStart;
+  auto advance = [&](std::uintmax_t bytes) {
+    at += bytes;
+    if (bytes > (1u << 20)) {
+      in.seekg(static_cast<std::streamoff>(at));
+    } else if (bytes > 0) {
+      in.ignore(static_cast<std::streamsize>(bytes));
+    }
+  };
+  for (const PlyElement& element : elements) {
+    bool hasList = false;
+    std::uintmax_t rowBytes = 0;
+    for (const PlyProperty& property : element.properties) {
+      hasList = hasList || property.list;
+      rowBytes += static_cast<std::uintmax_t>(property.item.bytes);
+    }
+    if (!hasList) {  // fixed-size rows: skip them at once
+      const std::uintmax_t bytes = rowBytes * element.count;
+      if (bytes > size - std::min(size, at)) return;  // assimp says the file is corrupt
+      advance(bytes);
+      continue;
+    }
+    for (std::uint32_t k = 0; k < element.count; ++k)
+      for (const PlyProperty& property : element.properties) {
+        if (!property.list) {
+          advance(static_cast<std::uintmax_t>(property.item.bytes));
+          continue;
+        }
+        unsigned char raw[8] = {0, 0, 0, 0, 0, 0, 0, 0};
+        const int n = property.count.bytes;
+        if (n < 1 || n > 8 || !in.read(reinterpret_cast<char*>(raw), n)) return;
+        std::uint64_t bits = 0;
+        for (int i = 0; i < n; ++i)
+          bits |= std::uint64_t{raw[bigEndian ? n - 1 - i : i]} << (8 * i);
+        double real = 0.0;
+        if (property.count.kind == PlyType::kSigned && (bits >> (8 * n - 1)) != 0)
+          bits |= ~std::uint64_t{0} << (8 * n);  // sign-extended
+        if (property.count.kind == PlyType::kReal) {
+          if (n == 4) {
+            float f = 0.0f;
+            const auto b32 = static_cast<std::uint32_t>(bits);
+            std::memcpy(&f, &b32, 4);
+            real = f;
+          } else {
+            std::memcpy(&real, &bits, 8);
+          }
+        }
+        const std::uint64_t count = plyListCount(property.count, bits, real);
+        // Items of 1 to 8 bytes: compared in items, so that nothing overflows.
+        check(element, k, count, at, static_cast<std::uintmax_t>(property.item.bytes));
+        at += static_cast<std::uintmax_t>(n);
+        advance(count * static_cast<std::uintmax_t>(property.item.bytes));
+      }
+  }
+}
+
 void preflightPly(std::istream& in, const std::string& name, std::uintmax_t size) {
   std::string line;
-  bool ascii = false, magic = false, ended = false;
+  bool ascii = false, magic = false, ended = false, bigEndian = false;
   std::uintmax_t total = 0;
+  std::vector<PlyElement> elements;
+  bool inElement = false;  // property lines still belong to the last element
   for (int lines = 0; lines < 10000 && std::getline(in, line); ++lines) {
     std::istringstream words(line);
     std::string keyword;
@@ -550,10 +829,29 @@ void preflightPly(std::istream& in, const std::string& name, std::uintmax_t size
       ended = true;
       break;
     }
+    if (keyword == "property" && inElement) {
+      PlyProperty property;
+      std::string word, first, second;
+      words >> word;
+      if (word == "list") {
+        words >> first >> second;
+        property.list = true;
+        property.count = plyType(first);
+        property.item = plyType(second);
+        inElement = property.count.bytes > 0 && property.item.bytes > 0;
+      } else {
+        property.item = plyType(word);
+        inElement = property.item.bytes > 0;
+      }
+      if (inElement) elements.back().properties.push_back(property);
+      continue;
+    }
+    inElement = false;
     if (keyword == "format") {
       std::string format;
       words >> format;
       ascii = format == "ascii";
+      bigEndian = format == "binary_big_endian";
       // Assimp 5.2 corrupts its heap on a format it does not know
       // (tests/regressions/mesh/ply_unknown_format_bad_free); the PLY format names three.
       if (magic && !ascii && format != "binary_little_endian" && format != "binary_big_endian")
@@ -576,6 +874,13 @@ void preflightPly(std::istream& in, const std::string& name, std::uintmax_t size
       }
       checkDeclaredCount(name, count, element + " elements", 1, size);
       total += count;
+      PlyElement parsed;
+      parsed.name = element;
+      parsed.count = static_cast<std::uint32_t>(count);  // assimp's 32 bits
+      parsed.parsedAsText = element == "vertex" || element == "face" || element == "tristrips" ||
+                            element == "edge" || element == "material";
+      elements.push_back(std::move(parsed));
+      inElement = true;
     }
   }
   // Assimp 5.2 loops forever on a PLY header without its end_header line
@@ -583,6 +888,11 @@ void preflightPly(std::istream& in, const std::string& name, std::uintmax_t size
   if (magic && !ended) preflightError(name, "the header has no end_header line");
   // An element takes at least one byte in binary and two ("0\n") in ASCII.
   checkDeclaredCount(name, total, "elements in all", ascii ? 2 : 1, size);
+  if (!magic || !ended) return;
+  // The body starts after the end_header line's first line-end character, as assimp reads
+  // it ("\r\n" leaves the "\n" in the body).
+  if (!line.empty() && line.back() == '\r') in.seekg(-1, std::ios::cur);
+  preflightPlyBody(in, name, size, elements, ascii, bigEndian);
 }
 
 void preflightObj(std::istream& in, const std::string& name) {
