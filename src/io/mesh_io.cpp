@@ -746,7 +746,9 @@ void preflightPlyBody(std::istream& in, const std::string& name, std::uintmax_t 
                 stopped = true;
                 break;
               }
+              const size_t before = p;
               if (!value(property.item, bits, real)) return;
+              if (p == before) break;  // no digits: the rest of the list reads nothing too
             }
             if (stopped) continue;  // ParseInstance returned false: no line-end skip
           }
