@@ -295,6 +295,9 @@ TEST(MeshImport, BadFilesGiveOneLineErrorsNamingTheFile) {
       // OBJ is text: a NUL byte is damage (assimp's OBJ reader corrupted its heap on such
       // files under the fuzzer).
       {data("obj_nul_byte.obj"), "line 3 holds a NUL byte (at column 6)"},
+      // A second face element: assimp 5.2 writes its 3 faces into the first one's array of 1.
+      {data("ply_second_face_element.ply"),
+       "the header declares a second face element ('face' after 'face')"},
       {data("ply_binary_list_count_past_the_end.ply"),
        "the list in face 0 (at byte 204) counts 4294967295 items, more than the 16 bytes left"},
   };

@@ -891,6 +891,21 @@ void preflightPly(std::istream& in, const std::string& name, std::uintmax_t size
   // An element takes at least one byte in binary and two ("0\n") in ASCII.
   checkDeclaredCount(name, total, "elements in all", ascii ? 2 : 1, size);
   if (!magic || !ended) return;
+  // Assimp 5.2 sizes the mesh's vertices by the first vertex element and its faces by the
+  // first face or tristrips element, and writes every later one into those arrays at its
+  // own instance numbers: past their end when it is longer (a SEGV in Release:
+  // tests/regressions/mesh/ply_second_face_element_overflows, found by the mesh fuzzer).
+  for (size_t later = 0; later < elements.size(); ++later)
+    for (size_t first = 0; first < later; ++first) {
+      const std::string& a = elements[first].name;
+      const std::string& b = elements[later].name;
+      const bool faceA = a == "face" || a == "tristrips", faceB = b == "face" || b == "tristrips";
+      if ((a == "vertex" && b == "vertex") || (faceA && faceB))
+        preflightError(name, "the header declares a second " +
+                                 std::string(b == "vertex" ? "vertex" : "face") + " element ('" +
+                                 b + "' after '" + a +
+                                 "'), which assimp 5.2 writes into the first one's arrays");
+    }
   // The body starts after the end_header line's first line-end character, as assimp reads
   // it ("\r\n" leaves the "\n" in the body).
   if (!line.empty() && line.back() == '\r') in.seekg(-1, std::ios::cur);
