@@ -75,8 +75,9 @@ PotentialEnergy potentialEnergy(const Model& model, const Points& position);
 /// reference), organised for speed and for threads (docs/performance.md).
 ///
 /// The vertices are cut into blocks of consecutive indices; the cut depends on the vertex
-/// count only. Each block computes the radial forces on its own vertices (a gather: every
-/// edge is evaluated from both ends, so nothing is written outside the block) and every
+/// count only. Each block computes the radial forces on its own vertices (a gather, so
+/// nothing is written outside the block: with angle springs every edge is evaluated from
+/// both ends; a block without them evaluates each of its edges once, radialOnlyBlock) and every
 /// angle spring centred in it once, adding the forces on its own vertices in place and
 /// those on vertices of other blocks to a per-block halo buffer. A second pass adds the
 /// halo buffers to their vertices in block order. Every sum therefore runs in an order
