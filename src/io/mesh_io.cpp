@@ -722,7 +722,7 @@ void preflightPlyBody(std::istream& in, const std::string& name, std::uintmax_t 
             if (at(p) == 'e' || at(p) == 'E') {
               ++p;
               if (at(p) == '-' || at(p) == '+') ++p;
-              while (at(p) >= '0' && at(p) <= '9') ++p;
+              while (digit(p)) ++p;
             }
             std::string text(b, first, p - first);
             std::replace(text.begin(), text.end(), ',', '.');
@@ -895,17 +895,19 @@ void preflightPly(std::istream& in, const std::string& name, std::uintmax_t size
   // first face or tristrips element, and writes every later one into those arrays at its
   // own instance numbers: past their end when it is longer (a SEGV in Release:
   // tests/regressions/mesh/ply_second_face_element_overflows, found by the mesh fuzzer).
-  for (size_t later = 0; later < elements.size(); ++later)
-    for (size_t first = 0; first < later; ++first) {
-      const std::string& a = elements[first].name;
-      const std::string& b = elements[later].name;
-      const bool faceA = a == "face" || a == "tristrips", faceB = b == "face" || b == "tristrips";
-      if ((a == "vertex" && b == "vertex") || (faceA && faceB))
-        preflightError(name, "the header declares a second " +
-                                 std::string(b == "vertex" ? "vertex" : "face") + " element ('" +
-                                 b + "' after '" + a +
-                                 "'), which assimp 5.2 writes into the first one's arrays");
-    }
+  const std::string* firstVertex = nullptr;
+  const std::string* firstFace = nullptr;
+  for (const PlyElement& element : elements) {
+    const bool vertex = element.name == "vertex";
+    if (!vertex && element.name != "face" && element.name != "tristrips") continue;
+    const std::string*& first = vertex ? firstVertex : firstFace;
+    if (first != nullptr)
+      preflightError(name, "the header declares a second " +
+                               std::string(vertex ? "vertex" : "face") + " element ('" +
+                               element.name + "' after '" + *first +
+                               "'), which assimp 5.2 writes into the first one's arrays");
+    first = &element.name;
+  }
   // The body starts after the end_header line's first line-end character, as assimp reads
   // it ("\r\n" leaves the "\n" in the body).
   if (!line.empty() && line.back() == '\r') in.seekg(-1, std::ios::cur);
@@ -1181,7 +1183,7 @@ void preflightGltf(std::istream& in, const std::string& name, bool binary, bool 
   // indices' or else the positions': a strip with no positions asks for 2^32 - 2 faces
   // (tests/regressions/mesh/glb_triangle_strip_without_positions_oom, found by the mesh
   // fuzzer: 64 GB, bad_alloc in Release, an abort under ASan). Such a primitive draws
-  // nothing; shorter line loops and strips of 2 to 3 vertices assimp reads as no faces.
+  // nothing. Line loops, and strips or fans of 2 vertices, assimp reads without harm.
   const auto accessorsField = j.find("accessors");
   // The count of an accessor named by index (glTF 2.0) or by id (glTF 1.0); 0 if it is not
   // there (assimp names a reference it cannot resolve).

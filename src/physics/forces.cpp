@@ -849,15 +849,11 @@ void ForceKernel::scatterBlock(const Model& model, const Points& position, Point
   const Index v0 = blockStart_[static_cast<size_t>(block)];
   const Index v1 = blockStart_[static_cast<size_t>(block) + 1];
   const Index length = v1 - v0;
-  {
-    const double* kappaTheta = prop.angularStiffness.data();
-    bool blockAngles = false;
-    for (Index v = v0; v < v1 && !blockAngles; ++v) blockAngles = kappaTheta[v] != 0.0;
-    if (!blockAngles) {
-      radialOnlyBlock(model, position, force, block, s);
-      blockHasAngles_[static_cast<size_t>(block)] = 0;
-      return;
-    }
+  const double* kappaTheta = prop.angularStiffness.data();
+  if (std::all_of(kappaTheta + v0, kappaTheta + v1, [](double k) { return k == 0.0; })) {
+    radialOnlyBlock(model, position, force, block, s);
+    blockHasAngles_[static_cast<size_t>(block)] = 0;
+    return;
   }
   const Index haloBegin = haloStart_[static_cast<size_t>(block)];
   const Index haloLength = haloStart_[static_cast<size_t>(block) + 1] - haloBegin;
@@ -868,7 +864,6 @@ void ForceKernel::scatterBlock(const Model& model, const Points& position, Point
   const Index* nbr = neighbour_.data();
   const Index* angleOffsets = model.angles.vertexOffsets.data();
   const double* r = position.data();
-  const double* kappaTheta = prop.angularStiffness.data();
   const double* restAngle = prop.restAngle.data();
   double* ax = s.ax.data();
   double* ay = s.ay.data();
