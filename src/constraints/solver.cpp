@@ -109,6 +109,17 @@ void StepResponse::buildElastic(const Stepper& stepper, const Model& model,
     if (stepper.scheme() == Scheme::ImplicitEuler) shift = t2 * implicitFactor(l);
     centreShift_[b] = shift * sigma(l);
   }
+  // Once per build (O(|S|^3)) rather than a factorisation of 3|S| unknowns every cycle.
+  elasticInverse_.resize(s, s);
+  if (s > 0) {
+    Eigen::CompleteOrthogonalDecomposition<Eigen::MatrixXd> decomposition(s, s);
+    decomposition.compute(elastic_);
+    elasticInverse_ = decomposition.solve(Eigen::MatrixXd::Identity(s, s));
+  }
+}
+
+void StepResponse::elasticForceFor(const Points& displacement, Points& force) const {
+  force.noalias() = elasticInverse_ * displacement;
 }
 
 void StepResponse::setRigid(const Rigid& rigid, const Points& startPosition,
@@ -200,6 +211,8 @@ void ConstraintSolver::setUp(const Mesh& mesh, const ConstraintSet& constraints)
       3 * static_cast<Index>(pins_.size()) + 2 * static_cast<Index>(planes_.size());
   jacobian_.setZero(residuals, unknownCount);
   factor_ = Eigen::CompleteOrthogonalDecomposition<Eigen::MatrixXd>(residuals, unknownCount);
+  pinError_.setZero(s, 3);
+  pinStep_.setZero(s, 3);
   for (VectorX* v : {&rhs_, &shifted_}) v->setZero(residuals);
   for (VectorX* v : {&step_, &base_, &trial_}) v->setZero(unknownCount);
 }
@@ -387,6 +400,31 @@ void ConstraintSolver::solve(const ConstraintSet& constraints, const StepRespons
   if (n == 0) return;
   double positionError = 0.0, normalError = 0.0;
   double cost = residual(constraints, response, rhs_, positionError, normalError);
+  if (positionError > positionTolerance && planes_.empty() && response.affine() &&
+      pins_.size() == support_.size()) {
+    // Pins alone on an affine response: the residual target - (r0 + C (f - f0)) is linear in
+    // the forces and its matrix constant while the response is, so the Newton step is
+    // exact with the pseudo-inverse built with the response. The loop below only refines
+    // (rounding, or a C too ill-conditioned for one step).
+    for (size_t k = 0; k < pins_.size(); ++k)
+      pinError_.row(pins_[k].local) = rhs_.segment<3>(3 * static_cast<Index>(k)).transpose();
+    response.elasticForceFor(pinError_, pinStep_);
+    unknowns(base_);
+    trial_ = base_;
+    for (size_t k = 0; k < pins_.size(); ++k)
+      trial_.segment<3>(3 * static_cast<Index>(k)) += pinStep_.row(pins_[k].local).transpose();
+    setUnknowns(trial_);
+    double p = 0.0, q = 0.0;
+    const double trialCost = residual(constraints, response, shifted_, p, q);
+    if (trialCost < cost) {
+      cost = trialCost;
+      rhs_ = shifted_;
+      positionError = p;
+      normalError = q;
+    } else {
+      setUnknowns(base_);
+    }
+  }
   for (int iteration = 0; iteration < kIterations; ++iteration) {
     if (positionError <= positionTolerance && normalError <= normalTolerance) break;
     unknowns(base_);

@@ -18,7 +18,8 @@
 //
 // The cycle computes a step, anchors the model at it (r_e0, f0), lets ConstraintSolver
 // solve for the forces on the model (damped Newton on pin forces and plane couples
-// together), and recomputes the step: one correction makes the constraints hold to rounding for the
+// together; with pins alone and no rigid motion the model is linear and one step with
+// C's pseudo-inverse, built with the response, solves it), and recomputes the step: one correction makes the constraints hold to rounding for the
 // exact-response schemes; the others take a few. Velocities are then made consistent:
 // a pinned vertex moves with its target, a constrained plane does not turn.
 
@@ -61,11 +62,18 @@ class StepResponse {
   /// End-of-step positions of the support (|S| x 3) under virtual forces `force` (|S| x 3).
   void predict(const Points& force, Points& position) const;
   [[nodiscard]] Index size() const { return static_cast<Index>(elastic_.rows()); }
+  /// Whether predict() is affine in the forces (no rigid component this step).
+  [[nodiscard]] bool affine() const { return !rigidActive_; }
+  /// The force change (|S| x 3) that moves the elastic positions by `displacement` (|S| x 3):
+  /// C^+ displacement, with C^+ the pseudo-inverse built with the response (least squares of
+  /// minimum norm where C is singular, as for vertices with no elastic share).
+  void elasticForceFor(const Points& displacement, Points& force) const;
 
  private:
   void rigidMotion(const Points& force, Vec3& centre, RigidDrift& drift) const;
 
   Eigen::MatrixXd elastic_;  // |S| x |S|
+  Eigen::MatrixXd elasticInverse_;  // its pseudo-inverse, for pins-only solves
   VectorX centreShift_;      // d (centre after the elastic step) / d f_l, times total mass
   double totalMass_ = 0.0;
   Points anchorPosition_, anchorForce_, start_;
@@ -152,6 +160,10 @@ class ConstraintSolver {
   void unknowns(VectorX& x) const;
   void setUnknowns(const VectorX& x);
 
+  bool solvePinsDirectly(const ConstraintSet& constraints, const StepResponse& response,
+                         double positionTolerance);
+
+  Points pinError_, pinStep_;  // |S| x 3, for solvePinsDirectly
   Eigen::MatrixXd jacobian_;
   Eigen::CompleteOrthogonalDecomposition<Eigen::MatrixXd> factor_;
   VectorX rhs_, step_, base_, trial_, shifted_;
