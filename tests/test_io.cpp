@@ -14,6 +14,7 @@
 
 #include "zsculpt/core/errors.h"
 #include "zsculpt/io/atomic_file.h"
+#include "zsculpt/io/isolated.h"
 #include "zsculpt/io/mesh_io.h"
 #include "zsculpt/io/scene.h"
 #include "zsculpt/io/state_io.h"
@@ -309,6 +310,96 @@ TEST(MeshImport, BadFilesGiveOneLineErrorsNamingTheFile) {
   EXPECT_THROW(loadMesh(data("missing.obj")), IOError);
   EXPECT_THROW(loadMesh(data("not_a_mesh.xyz")), IOError);
   EXPECT_THROW(loadMesh(data("nan.obj")), InvalidInputError);
+}
+
+TEST(Isolation, WorkRunsInAChildAndItsAnswerArrivesWhole) {
+  int touched = 0;
+  std::string big(20 << 20, '\0');  // more than a pipe holds: the parent must read as it comes
+  for (std::size_t k = 0; k < big.size(); ++k) big[k] = static_cast<char>(k * 7919 % 251);
+  const std::string answer = runIsolated("x.obj", [&] {
+    touched = 1;
+    return std::to_string(::getpid()) + ":" + big;
+  });
+  EXPECT_EQ(touched, 0);  // the parent's memory is not the child's
+  const std::size_t colon = answer.find(':');
+  ASSERT_NE(colon, std::string::npos);
+  EXPECT_NE(answer.substr(0, colon), std::to_string(::getpid()));
+  EXPECT_TRUE(answer.compare(colon + 1, std::string::npos, big) == 0);
+}
+
+TEST(Isolation, ErrorsComeBackWithTheirTypeAndMessage) {
+  auto expectThrown = [](auto error, auto&& catchIt) {
+    bool caught = false;
+    try {
+      runIsolated("x.obj", [&]() -> std::string { throw error; });
+    } catch (const Error& e) {
+      caught = catchIt(e);
+      EXPECT_STREQ(e.what(), error.what());
+    }
+    EXPECT_TRUE(caught) << error.what();
+  };
+  expectThrown(TopologyError("x.obj: a face repeats vertex 3"),
+               [](const Error& e) { return dynamic_cast<const TopologyError*>(&e) != nullptr; });
+  expectThrown(InvalidInputError("x.obj: vertex 2 is not finite"), [](const Error& e) {
+    return dynamic_cast<const InvalidInputError*>(&e) != nullptr &&
+           dynamic_cast<const TopologyError*>(&e) == nullptr;
+  });
+  expectThrown(IOError("x.obj: not a .obj file"),
+               [](const Error& e) { return dynamic_cast<const IOError*>(&e) != nullptr; });
+  const std::string memory =
+      errorOf([] { runIsolated("x.obj", []() -> std::string { throw std::bad_alloc(); }); });
+  EXPECT_EQ(memory, "x.obj: out of memory while reading");
+}
+
+TEST(Isolation, ACrashOrAHangCostsTheReadNotTheProcess) {
+  const std::string crash = errorOf([] {
+    runIsolated("damaged.obj", []() -> std::string {
+      std::abort();  // what a fault in the importer does, short of corrupting the parent
+    });
+  });
+  expectUserError(crash, "damaged.obj");
+  EXPECT_NE(crash.find("the importer crashed"), std::string::npos) << crash;
+  EXPECT_NE(crash.find("signal 6"), std::string::npos) << crash;
+
+  IsolationLimits limits;
+  limits.timeout = std::chrono::milliseconds(300);
+  const auto start = std::chrono::steady_clock::now();
+  const std::string hang = errorOf([&] {
+    runIsolated(
+        "looping.ply",
+        []() -> std::string {
+          for (;;) ::pause();
+        },
+        limits);
+  });
+  expectUserError(hang, "looping.ply");
+  EXPECT_NE(hang.find("took longer than 300 ms"), std::string::npos) << hang;
+  EXPECT_LT(std::chrono::steady_clock::now() - start, std::chrono::seconds(30));
+}
+
+TEST(MeshImport, TheImportProcessGivesTheMeshOfAReadHere) {
+  // Faces, curves and a solid's wire edges, and the load report, through the child's answer.
+  const fs::path dir =
+      fs::temp_directory_path() / ("zsculpt_isolated_" + std::to_string(::getpid()));
+  fs::create_directories(dir);
+  saveMesh(makeLattice(3), (dir / "lattice.ply").string());
+  for (const std::string& file :
+       {data("curve.obj"), data("coincident.obj"), data("repeated_vertex.obj"),
+        corpus("OBJ/box.obj"), (dir / "lattice.ply").string()}) {
+    SCOPED_TRACE(file);
+    MeshLoadReport isolated, here;
+    const Mesh a = loadMesh(file, &isolated);
+    const Mesh b = loadMeshInProcess(file, &here);
+    EXPECT_EQ(a.positions(), b.positions());
+    EXPECT_EQ(facesOf(a), facesOf(b));
+    EXPECT_EQ(a.edges(), b.edges());
+    EXPECT_EQ(
+        std::tie(isolated.meshesMerged, isolated.verticesWelded, isolated.degenerateFacesDropped,
+                 isolated.pointsAndLinesDropped, isolated.unusedVerticesDropped),
+        std::tie(here.meshesMerged, here.verticesWelded, here.degenerateFacesDropped,
+                 here.pointsAndLinesDropped, here.unusedVerticesDropped));
+  }
+  fs::remove_all(dir);
 }
 
 TEST(MeshImport, UnreadableFileIsAnError) {

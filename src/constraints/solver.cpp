@@ -400,30 +400,35 @@ void ConstraintSolver::solve(const ConstraintSet& constraints, const StepRespons
   if (n == 0) return;
   double positionError = 0.0, normalError = 0.0;
   double cost = residual(constraints, response, rhs_, positionError, normalError);
-  if (positionError > positionTolerance && planes_.empty() && response.affine() &&
-      pins_.size() == support_.size()) {
+  if (planes_.empty() && response.affine() && pins_.size() == support_.size()) {
     // Pins alone on an affine response: the residual target - (r0 + C (f - f0)) is linear in
-    // the forces and its matrix constant while the response is, so the Newton step is
-    // exact with the pseudo-inverse built with the response. The loop below only refines
-    // (rounding, or a C too ill-conditioned for one step).
-    for (size_t k = 0; k < pins_.size(); ++k)
-      pinError_.row(pins_[k].local) = rhs_.segment<3>(3 * static_cast<Index>(k)).transpose();
-    response.elasticForceFor(pinError_, pinStep_);
-    unknowns(base_);
-    trial_ = base_;
-    for (size_t k = 0; k < pins_.size(); ++k)
-      trial_.segment<3>(3 * static_cast<Index>(k)) += pinStep_.row(pins_[k].local).transpose();
-    setUnknowns(trial_);
-    double p = 0.0, q = 0.0;
-    const double trialCost = residual(constraints, response, shifted_, p, q);
-    if (trialCost < cost) {
+    // the forces, and its Jacobian is -C, constant while the response is. The Newton step is
+    // then exact with the pseudo-inverse built with the response; a second one refines what
+    // rounding left (a state far from the model's scale, as in a divergence). A
+    // finite-difference Jacobian could do no better.
+    constexpr int kRefinements = 3;
+    for (int k = 0; k < kRefinements && positionError > positionTolerance; ++k) {
+      for (size_t pin = 0; pin < pins_.size(); ++pin)
+        pinError_.row(pins_[pin].local) = rhs_.segment<3>(3 * static_cast<Index>(pin)).transpose();
+      response.elasticForceFor(pinError_, pinStep_);
+      unknowns(base_);
+      trial_ = base_;
+      for (size_t pin = 0; pin < pins_.size(); ++pin)
+        trial_.segment<3>(3 * static_cast<Index>(pin)) +=
+            pinStep_.row(pins_[pin].local).transpose();
+      setUnknowns(trial_);
+      double p = 0.0, q = 0.0;
+      const double trialCost = residual(constraints, response, shifted_, p, q);
+      if (!(trialCost < cost)) {
+        setUnknowns(base_);
+        break;
+      }
       cost = trialCost;
       rhs_ = shifted_;
       positionError = p;
-      normalError = q;
-    } else {
-      setUnknowns(base_);
     }
+    assembleForces();
+    return;
   }
   for (int iteration = 0; iteration < kIterations; ++iteration) {
     if (positionError <= positionTolerance && normalError <= normalTolerance) break;

@@ -23,7 +23,13 @@ struct MeshLoadReport {
 /// polygons; degenerate faces are dropped and counted (see docs/scene-format.md, "Mesh
 /// files"). Throws IOError "<path>: <reason>" (missing, unreadable, unsupported, empty,
 /// assimp's error) or InvalidInputError (non-finite coordinates, an index out of range).
+/// The reading is done in a child process (io/isolated.h): a crash or hang of the importer
+/// on a damaged file is an IOError "<path>: the importer crashed ..." and the caller lives
+/// on. With the environment variable ZSCULPT_IMPORT_IN_PROCESS=1 it is done in this process.
 Mesh loadMesh(const std::string& path, MeshLoadReport* report = nullptr);
+
+/// loadMesh in this process, without the child.
+Mesh loadMeshInProcess(const std::string& path, MeshLoadReport* report = nullptr);
 
 /// Same from memory; `hint` is the format's extension ("obj", "ply"...). For fuzzing.
 Mesh loadMeshFromMemory(const void* data, std::size_t size, const std::string& hint,
