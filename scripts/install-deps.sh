@@ -6,7 +6,7 @@ set -euo pipefail
 
 packages=(
   build-essential cmake pkg-config git
-  libeigen3-dev libspectra-dev
+  libeigen3-dev
   libassimp-dev assimp-testmodels
   libgtest-dev libbenchmark-dev
   libosmesa6-dev libgl-dev libglfw3-dev libimgui-dev libstb-dev

@@ -1,9 +1,9 @@
 #include "zsculpt/physics/matrices.h"
 
 #include <Eigen/Eigenvalues>
-#include <Spectra/SymEigsSolver.h>
 #include <algorithm>
 #include <cmath>
+#include <cstdint>
 #include <limits>
 
 #include "zsculpt/core/errors.h"
@@ -177,32 +177,6 @@ double criticalPeriod(const SystemMatrices& matrices) {
   return std::sqrt(6.0 / largest);
 }
 
-namespace {
-
-// y = M^-1/2 K M^-1/2 x, the symmetric form of Omega^2, for Spectra.
-class SymmetricOmega2 {
- public:
-  using Scalar = double;
-  explicit SymmetricOmega2(const SystemMatrices& m)
-      : k_(m.stiffness()), scale_(m.inverseMass().cwiseSqrt()), tmp_(scale_.size()) {}
-  [[nodiscard]] Eigen::Index rows() const { return scale_.size(); }
-  [[nodiscard]] Eigen::Index cols() const { return scale_.size(); }
-  void perform_op(const double* in, double* out) const {
-    Eigen::Map<const VectorX> x(in, rows());
-    Eigen::Map<VectorX> y(out, rows());
-    tmp_ = scale_.cwiseProduct(x);
-    y.noalias() = k_ * tmp_;
-    y = y.cwiseProduct(scale_);
-  }
-
- private:
-  const SparseRowMatrix& k_;
-  VectorX scale_;
-  mutable VectorX tmp_;
-};
-
-}  // namespace
-
 double largestEigenvalue(const SystemMatrices& matrices) {
   const Eigen::Index n = matrices.stiffness().rows();
   const VectorX scale = matrices.inverseMass().cwiseSqrt();
@@ -212,16 +186,55 @@ double largestEigenvalue(const SystemMatrices& matrices) {
     Eigen::SelfAdjointEigenSolver<Eigen::MatrixXd> eig(dense, Eigen::EigenvaluesOnly);
     return eig.eigenvalues().maxCoeff();
   }
-  SymmetricOmega2 op(matrices);
-  const Eigen::Index ncv = std::min<Eigen::Index>(n, 40);
-  Spectra::SymEigsSolver<SymmetricOmega2> eigs(op, 1, ncv);
-  eigs.init();
-  eigs.compute(Spectra::SortRule::LargestAlge, 3000, 1e-9);
-  if (eigs.info() != Spectra::CompInfo::Successful) {
-    // Fall back to the Gerschgorin bound of equation 5 (safe: never below lambda_0).
-    return 2.0 * matrices.omega2().diagonal().maxCoeff();
+  // Lanczos on the symmetric form S K S (S = M^-1/2), without restarts or
+  // reorthogonalisation: the largest Ritz value of the tridiagonal T_k rises to lambda_0
+  // from below, and loss of orthogonality only makes copies of converged values, never one
+  // above it. Stiffness matrices of fine meshes crowd their top eigenvalues together;
+  // a restarted solver with a small basis (Spectra's, before) spent minutes on a 1M-vertex
+  // torus refining eigenvectors there, where only the value is wanted. Stop when the value
+  // has settled to 1e-13 between two checks; checks come every tenth of the steps so far
+  // (at least 10), so the tridiagonal solves cost O(k^2) in all. Three vectors of storage.
+  const SparseRowMatrix& k = matrices.stiffness();
+  VectorX v(n), previous = VectorX::Zero(n), w(n), scaled(n);
+  // A fixed pseudo-random start (reproducible), with a component on every mode.
+  std::uint64_t seed = 0x9E3779B97F4A7C15ull;
+  for (Eigen::Index i = 0; i < n; ++i) {
+    seed = seed * 6364136223846793005ull + 1442695040888963407ull;
+    v[i] = static_cast<double>(seed >> 11) * 0x1.0p-53 - 0.5;
   }
-  return eigs.eigenvalues()[0];
+  v.normalize();
+  constexpr int kMaxSteps = 20000;
+  int nextCheck = 10;
+  std::vector<double> alpha, beta;  // T_k's diagonal and subdiagonal
+  double last = 0.0;
+  VectorX diagonal, subdiagonal;
+  for (int step = 0; step < kMaxSteps; ++step) {
+    scaled = scale.cwiseProduct(v);
+    w.noalias() = k * scaled;
+    w = w.cwiseProduct(scale);
+    if (step > 0) w -= beta.back() * previous;
+    alpha.push_back(w.dot(v));
+    w -= alpha.back() * v;
+    const double b = w.norm();
+    if (step + 1 == nextCheck || !(b > 0.0)) {
+      nextCheck = step + 1 + std::max(10, (step + 1) / 10);
+      const Eigen::Index size = static_cast<Eigen::Index>(alpha.size());
+      diagonal = Eigen::Map<const VectorX>(alpha.data(), size);
+      subdiagonal = Eigen::Map<const VectorX>(beta.data(), size - 1);
+      Eigen::SelfAdjointEigenSolver<Eigen::MatrixXd> tridiagonal;
+      tridiagonal.computeFromTridiagonal(diagonal, subdiagonal, Eigen::EigenvaluesOnly);
+      const double value = tridiagonal.eigenvalues().maxCoeff();
+      // An exhausted Krylov space (b = 0) holds lambda_0 exactly.
+      if (!(b > 1e-14 * std::abs(value))) return value;
+      if (value - last <= 1e-13 * std::abs(value)) return value;
+      last = value;
+    }
+    beta.push_back(b);
+    previous.swap(v);
+    v = w / b;
+  }
+  // Not settled: the Gerschgorin bound of equation 5, never below lambda_0.
+  return 2.0 * matrices.omega2().diagonal().maxCoeff();
 }
 
 double tightCriticalPeriod(const SystemMatrices& matrices) {
