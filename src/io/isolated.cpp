@@ -3,12 +3,14 @@
 #include <fcntl.h>
 #include <poll.h>
 #include <signal.h>
+#include <sys/resource.h>
 #include <sys/wait.h>
 #include <unistd.h>
 
 #include <algorithm>
 #include <cerrno>
 #include <cstring>
+#include <fstream>
 #include <new>
 
 #include "zsculpt/core/errors.h"
@@ -48,8 +50,35 @@ bool writeAll(int fd, const char* data, std::size_t size) {
   ::_exit(sent ? 0 : 1);
 }
 
-[[noreturn]] void runChild(int fd, const std::function<std::string()>& work) {
+#if defined(__SANITIZE_ADDRESS__) || defined(__SANITIZE_THREAD__)
+constexpr bool kSanitized = true;
+#elif defined(__has_feature)
+#if __has_feature(address_sanitizer) || __has_feature(thread_sanitizer) || \
+    __has_feature(memory_sanitizer)
+constexpr bool kSanitized = true;
+#else
+constexpr bool kSanitized = false;
+#endif
+#else
+constexpr bool kSanitized = false;
+#endif
+
+// RLIMIT_AS counts the address space the child inherited from the parent (its libraries,
+// its heap, other threads' stacks), so the limit is what the child has plus the budget.
+void limitMemory(std::uint64_t budget) {
+  if (budget == 0 || kSanitized) return;
+  std::ifstream statm("/proc/self/statm");
+  std::uint64_t pages = 0;
+  if (!(statm >> pages)) return;
+  const std::uint64_t limit = pages * static_cast<std::uint64_t>(::sysconf(_SC_PAGESIZE)) + budget;
+  const rlimit wanted{limit, limit};
+  ::setrlimit(RLIMIT_AS, &wanted);
+}
+
+[[noreturn]] void runChild(int fd, const std::function<std::string()>& work,
+                           std::uint64_t memoryBytes) {
   try {
+    limitMemory(memoryBytes);
     answerAndExit(fd, kResult, work());
   } catch (const TopologyError& e) {
     answerAndExit(fd, kTopology, e.what());
@@ -102,6 +131,10 @@ struct Child {
 
 }  // namespace
 
+bool isolationLimitsMemory() {
+  return !kSanitized;
+}
+
 std::string runIsolated(const std::string& name, const std::function<std::string()>& work,
                         const IsolationLimits& limits) {
   int fds[2];
@@ -114,7 +147,7 @@ std::string runIsolated(const std::string& name, const std::function<std::string
   }
   if (pid == 0) {
     ::close(fds[0]);
-    runChild(fds[1], work);
+    runChild(fds[1], work, limits.memoryBytes);
   }
   ::close(fds[1]);
   Child child{pid};

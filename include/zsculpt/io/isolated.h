@@ -7,6 +7,7 @@
 // error; a crash or a hang in it becomes an IOError naming the file.
 
 #include <chrono>
+#include <cstdint>
 #include <functional>
 #include <string>
 
@@ -15,7 +16,14 @@ namespace zsculpt::io {
 struct IsolationLimits {
   /// The child is killed after this long (a reader stuck on a damaged file).
   std::chrono::milliseconds timeout{std::chrono::seconds(120)};
+  /// Address space the child may take beyond what it starts with (0: no limit), so that a
+  /// reader that believes a damaged count allocates, fails fast with bad_alloc instead of
+  /// eating the machine's memory. Not applied in sanitizer builds (their shadow memory).
+  std::uint64_t memoryBytes = 0;
 };
+
+/// Whether IsolationLimits::memoryBytes is applied in this build.
+bool isolationLimitsMemory();
 
 /// Runs `work` in a forked child and returns the bytes it returned. An Error it throws is
 /// thrown again here with the same type (IOError, InvalidInputError, TopologyError,
