@@ -717,6 +717,16 @@ void preflightPlyBody(std::istream& in, const std::string& name, std::uintmax_t 
             auto digit = [&](size_t i) { return at(i) >= '0' && at(i) <= '9'; };
             const bool number = digit(p) || ((at(p) == '.' || at(p) == ',') && digit(p + 1));
             if (!number) return false;
+            // strtoul10_64 reads the integer part; where it overflows 64 bits it returns 0
+            // without moving the cursor, so the next properties read the same digits again,
+            // and a list count reads them as 32 bits
+            // (tests/data/io/ply_vertex_list_count_of_21_digits_oom.ply: a 6.6 GB list).
+            std::uint64_t whole = 0;
+            for (size_t i = p; digit(i); ++i) {
+              const std::uint64_t next = whole * 10 + static_cast<std::uint64_t>(at(i) - '0');
+              if (next < whole) return true;  // the value 0, the cursor after the sign
+              whole = next;
+            }
             while (digit(p)) ++p;
             if ((at(p) == '.' || at(p) == ',') && digit(p + 1)) ++p;
             while (digit(p)) ++p;
@@ -817,6 +827,13 @@ void preflightPlyBody(std::istream& in, const std::string& name, std::uintmax_t 
   }
 }
 
+bool endsPlyHeader(const std::string& line) {
+  if (line.compare(0, 10, "end_header") != 0) return false;
+  const char next = line.size() > 10 ? line[10] : '\n';
+  return next == ' ' || next == '\t' || next == '\r' || next == '\n' || next == '\0' ||
+         next == '\f';
+}
+
 void preflightPly(std::istream& in, const std::string& name, std::uintmax_t size) {
   std::string line;
   bool ascii = false, magic = false, ended = false, bigEndian = false;
@@ -828,6 +845,11 @@ void preflightPly(std::istream& in, const std::string& name, std::uintmax_t size
     std::string keyword;
     words >> keyword;
     if (lines == 0) magic = startsWithPlyMagic(line);
+    // Assimp 5.2 ends the header only at "end_header" at the very start of a line followed
+    // by a space, a tab or a line end (TokenMatch); "end_header\v..." is not the end for it,
+    // and it loops past the end of the file looking for one
+    // (tests/data/io/ply_end_header_with_vertical_tab.ply, found by the mesh fuzzer).
+    if (keyword == "end_header" && !endsPlyHeader(line)) continue;
     if (keyword == "end_header") {
       ended = true;
       break;
