@@ -45,6 +45,9 @@ for t in "${targets[@]}"; do
   artifacts="$build/artifacts/$t"
   mkdir -p "$work" "$artifacts"
   echo "fuzz: $t for ${seconds} s" >&2
+  # In fork mode with -ignore_crashes libFuzzer exits 0 after findings: new artifacts count.
+  stamp="$build/.fuzz_$t.start"
+  touch "$stamp"
   # -rss_limit_mb: assimp may legitimately take a few hundred MB; a runaway is a finding.
   # -timeout: one input taking longer than 10 s is a hang.
   if ! "$build/fuzz/fuzz_$t" "$work" "$root/tests/fuzz_corpus/$t" \
@@ -53,6 +56,9 @@ for t in "${targets[@]}"; do
       >"$build/fuzz_$t.log" 2>&1; then
     failed+=("$t")
     echo "fuzz: $t FAILED: see $build/fuzz_$t.log and $artifacts/" >&2
+  elif [ -n "$(find "$artifacts" -type f -newer "$stamp" -print -quit)" ]; then
+    failed+=("$t")
+    echo "fuzz: $t left new inputs in $artifacts/ (crash, oom, timeout or leak): see $build/fuzz_$t.log" >&2
   fi
   grep -E "^(#[0-9]+.*DONE|stat::number_of_executed_units|stat::peak_rss_mb|Done [0-9]+ runs)" \
     "$build/fuzz_$t.log" | sed "s/^/fuzz: $t: /" >&2 || true
