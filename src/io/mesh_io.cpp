@@ -1406,7 +1406,7 @@ void refuseForeignReader(const Assimp::Importer& importer, const std::string& pa
 // edges as the child's did). Native byte order: both ends are this program.
 template <class T>
 void put(std::string& out, const T* data, std::size_t count) {
-  out.append(reinterpret_cast<const char*>(data), count * sizeof(T));
+  if (count > 0) out.append(reinterpret_cast<const char*>(data), count * sizeof(T));
 }
 
 std::string encodeMesh(const Mesh& mesh, const MeshLoadReport& report) {
@@ -1439,6 +1439,7 @@ Mesh decodeMesh(const std::string& bytes, const std::string& name, MeshLoadRepor
   std::size_t at = 0;
   auto take = [&](auto* data, std::size_t count) {
     if (count > (bytes.size() - at) / sizeof(*data)) throw IOError(garbled);
+    if (count == 0) return;  // data() of an empty vector may be null: no memcpy from it
     std::memcpy(data, bytes.data() + at, count * sizeof(*data));
     at += count * sizeof(*data);
   };
