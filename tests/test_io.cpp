@@ -413,6 +413,23 @@ TEST(Isolation, AnAllocationPastTheBudgetFailsInTheChild) {
             std::size_t{64} << 20);
 }
 
+TEST(MeshImport, AssimpFaultsNoCheckCatchesYetCostTheImportOnly) {
+  // Found by the mesh fuzzer at the end of the ninth session, not yet understood: on the
+  // first assimp 5.2 asks for 7 GB (22 s in the process), on the second it never returns.
+  // In the child they cost a one-line error: the memory budget and the time limit.
+  if (isolationLimitsMemory()) {
+    const auto start = std::chrono::steady_clock::now();
+    const std::string oom = errorOf([] { loadMesh(data("ply_vertex_list_unfixed_oom.ply")); });
+    EXPECT_EQ(oom, data("ply_vertex_list_unfixed_oom.ply") + ": out of memory while reading");
+    EXPECT_LT(std::chrono::steady_clock::now() - start, std::chrono::seconds(20));
+  }
+  ::setenv("ZSCULPT_IMPORT_TIMEOUT", "1.5", 1);
+  const std::string hang = errorOf([] { loadMesh(data("ply_damaged_header_unfixed_hang.ply")); });
+  ::unsetenv("ZSCULPT_IMPORT_TIMEOUT");
+  expectUserError(hang, data("ply_damaged_header_unfixed_hang.ply"));
+  EXPECT_NE(hang.find("reading took longer than 1500 ms"), std::string::npos) << hang;
+}
+
 TEST(MeshImport, ABadImportTimeoutIsNamed) {
   ::setenv("ZSCULPT_IMPORT_TIMEOUT", "soon", 1);
   const std::string error = errorOf([] { loadMesh(data("curve.obj")); });
