@@ -1,8 +1,7 @@
 #pragma once
 // Work that may crash the process, run in a child process instead. Assimp 5.2 has faults
-// that no preflight check of ours has found yet (an out-of-bounds write in its OBJ path,
-// seen about once per 100,000 fuzzed inputs and never reproduced alone; docs/
-// reliability.md): a user's session must not be lost to one of them. The child is forked
+// that the preflight checks of mesh_io.cpp do not catch yet (docs/reliability.md lists the
+// ones the fuzzer found): a user's session must not be lost to one of them. The child is forked
 // (copy-on-write: nothing to load again), does the work and sends back its bytes or its
 // error; a crash or a hang in it becomes an IOError naming the file.
 
