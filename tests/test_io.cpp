@@ -310,6 +310,21 @@ TEST(MeshImport, BadFilesGiveOneLineErrorsNamingTheFile) {
       // "end_header" followed by a vertical tab does not end the header for assimp 5.2, which
       // then loops at the end of the file.
       {data("ply_end_header_with_vertical_tab.ply"), "the header has no end_header line"},
+      // A real with a trailing dot ("1."): assimp 5.2 eats the dot and goes on to the list
+      // count, 3000000000 items (24 GB; the walk used to stop at the dot). In the fuzzer's
+      // input the same let a later line of 24 digits read as a count of 906090330 (7 GB).
+      {data("ply_float_with_trailing_dot_then_list.ply"),
+       "the list in vertex 0 (at byte 126) counts 3000000000 items"},
+      {data("ply_vertex_list_after_trailing_dot_oom.ply"),
+       "the list in vertex 9 (at byte 697) counts 906090330 items"},
+      // An exponent of 20 digits overflows 64 bits: assimp 5.2 reads it as 0 and leaves the
+      // digits, which the list count then reads as 1661992959 items (13 GB).
+      {data("ply_float_exponent_of_20_digits_then_list.ply"),
+       "the list in vertex 0 (at byte 116) counts 1661992959 items"},
+      // "end_header" as the file's last bytes, no line end: assimp 5.2 never ends the header
+      // when an earlier, longer line left a letter after it in its line buffer.
+      {data("ply_end_header_at_end_of_file_hangs.ply"),
+       "the file ends at its end_header line: no data follows it"},
   };
   for (const Case& c : cases) {
     const std::string message = errorOf([&] { loadMesh(c.path); });
@@ -413,21 +428,15 @@ TEST(Isolation, AnAllocationPastTheBudgetFailsInTheChild) {
             std::size_t{64} << 20);
 }
 
-TEST(MeshImport, AssimpFaultsNoCheckCatchesYetCostTheImportOnly) {
-  // Found by the mesh fuzzer at the end of the ninth session, not yet understood: on the
-  // first assimp 5.2 asks for 7 GB (22 s in the process), on the second it never returns.
-  // In the child they cost a one-line error: the memory budget and the time limit.
-  if (isolationLimitsMemory()) {
-    const auto start = std::chrono::steady_clock::now();
-    const std::string oom = errorOf([] { loadMesh(data("ply_vertex_list_unfixed_oom.ply")); });
-    EXPECT_EQ(oom, data("ply_vertex_list_unfixed_oom.ply") + ": out of memory while reading");
-    EXPECT_LT(std::chrono::steady_clock::now() - start, std::chrono::seconds(20));
-  }
-  ::setenv("ZSCULPT_IMPORT_TIMEOUT", "1.5", 1);
-  const std::string hang = errorOf([] { loadMesh(data("ply_damaged_header_unfixed_hang.ply")); });
-  ::unsetenv("ZSCULPT_IMPORT_TIMEOUT");
-  expectUserError(hang, data("ply_damaged_header_unfixed_hang.ply"));
-  EXPECT_NE(hang.find("reading took longer than 1500 ms"), std::string::npos) << hang;
+TEST(MeshImport, PlyNumbersAreReadInAssimpsForms) {
+  // The preflight walks ASCII PLY numbers as assimp 5.2 does ("1." is 1, "0,5" is 0.5, an
+  // exponent of either case and sign); it must not refuse what assimp reads well.
+  const Mesh mesh = loadMesh(data("ply_numbers_in_assimp_forms.ply"));
+  ASSERT_EQ(mesh.numVertices(), 3);
+  EXPECT_EQ(Vec3(mesh.positions().row(0)), Vec3(1, 0, 0));
+  EXPECT_EQ(Vec3(mesh.positions().row(1)), Vec3(0, 2.5, 0));
+  EXPECT_EQ(Vec3(mesh.positions().row(2)), Vec3(0, 0.5, 1));
+  EXPECT_EQ(mesh.numFaces(), 1);
 }
 
 TEST(MeshImport, ABadImportTimeoutIsNamed) {

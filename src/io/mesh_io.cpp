@@ -13,6 +13,7 @@
 #include <bit>
 #include <cctype>
 #include <cerrno>
+#include <cmath>
 #include <cstdlib>
 #include <cstring>
 #include <filesystem>
@@ -696,9 +697,10 @@ void preflightPlyBody(std::istream& in, const std::string& name, std::uintmax_t 
             bits = digits();
             if (negative) bits = (0x100000000u - bits) & 0xffffffffu;
           } else {
-            // fast_atoreal_move: a sign, then "nan", "inf" or "infinity", or digits with a
-            // '.' or ',' and an exponent; it throws on anything else.
-            const size_t first = p;
+            // fast_atoreal_move (assimp/fast_atof.h, 5.2): a sign, then "nan", "inf" or
+            // "infinity", or an integer part, a fraction after '.' or ',', and an exponent;
+            // it throws where no number starts.
+            const bool negative = at(p) == '-';
             if (at(p) == '-' || at(p) == '+') ++p;
             auto word = [&](const char* w) {
               for (size_t i = 0; w[i] != '\0'; ++i)
@@ -717,27 +719,48 @@ void preflightPlyBody(std::istream& in, const std::string& name, std::uintmax_t 
             auto digit = [&](size_t i) { return at(i) >= '0' && at(i) <= '9'; };
             const bool number = digit(p) || ((at(p) == '.' || at(p) == ',') && digit(p + 1));
             if (!number) return false;
-            // strtoul10_64 reads the integer part; where it overflows 64 bits it returns 0
-            // without moving the cursor, so the next properties read the same digits again,
-            // and a list count reads them as 32 bits
+            // strtoul10_64: where the digits overflow 64 bits it returns 0 and leaves the
+            // cursor where it was, so the next properties read the same digits again, and a
+            // list count reads them as 32 bits
             // (tests/data/io/ply_vertex_list_count_of_21_digits_oom.ply: a 6.6 GB list).
+            // Otherwise the cursor moves past them (past all of them when `most` is set).
+            auto unsignedDigits = [&](std::uint64_t& out, int most) {
+              std::uint64_t v = 0;
+              int n = 0;
+              for (size_t i = p; digit(i) && (most == 0 || n < most); ++i, ++n) {
+                const std::uint64_t next = v * 10 + static_cast<std::uint64_t>(at(i) - '0');
+                if (next < v) {
+                  out = 0;
+                  return 0;  // no digit consumed
+                }
+                v = next;
+              }
+              out = v;
+              while (digit(p)) ++p;
+              return n;
+            };
             std::uint64_t whole = 0;
-            for (size_t i = p; digit(i); ++i) {
-              const std::uint64_t next = whole * 10 + static_cast<std::uint64_t>(at(i) - '0');
-              if (next < whole) return true;  // the value 0, the cursor after the sign
-              whole = next;
+            if (at(p) != '.' && at(p) != ',') (void)unsignedDigits(whole, 0);
+            double f = static_cast<double>(whole);
+            if ((at(p) == '.' || at(p) == ',') && digit(p + 1)) {
+              ++p;
+              std::uint64_t fraction = 0;
+              const int n = unsignedDigits(fraction, 15);
+              f += static_cast<double>(fraction) * std::pow(10.0, -n);
+            } else if (at(p) == '.') {
+              ++p;  // "1." is 1: assimp eats a trailing dot (not a trailing comma)
             }
-            while (digit(p)) ++p;
-            if ((at(p) == '.' || at(p) == ',') && digit(p + 1)) ++p;
-            while (digit(p)) ++p;
             if (at(p) == 'e' || at(p) == 'E') {
               ++p;
+              const bool negativeExponent = at(p) == '-';
               if (at(p) == '-' || at(p) == '+') ++p;
-              while (digit(p)) ++p;
+              if (!digit(p)) return false;  // strtoul10_64 throws: the import fails
+              std::uint64_t exponent = 0;
+              (void)unsignedDigits(exponent, 0);  // an overflowing one stays unread
+              f *= std::pow(10.0, negativeExponent ? -static_cast<double>(exponent)
+                                                   : static_cast<double>(exponent));
             }
-            std::string text(b, first, p - first);
-            std::replace(text.begin(), text.end(), ',', '.');
-            real = std::strtod(text.c_str(), nullptr);
+            real = negative ? -f : f;
           }
           return true;
         };
@@ -852,6 +875,14 @@ void preflightPly(std::istream& in, const std::string& name, std::uintmax_t size
     if (keyword == "end_header" && !endsPlyHeader(line)) continue;
     if (keyword == "end_header") {
       ended = true;
+      // Assimp 5.2 reads its header lines into one buffer without clearing it and goes on
+      // when a line cannot be read. An end_header line the file ends in, with no line end,
+      // is read but reported unread, and if an earlier, longer line left a letter in the
+      // buffer just after it, the header never ends for assimp: it reads past the end of
+      // the file forever (tests/data/io/ply_end_header_at_end_of_file_hangs.ply, found by
+      // the mesh fuzzer). No element can have data after it, so it is refused always.
+      if (in.eof() && line.find_first_of(std::string("\r\f\0", 3)) == std::string::npos)
+        preflightError(name, "the file ends at its end_header line: no data follows it");
       break;
     }
     if (keyword == "property" && inElement) {
