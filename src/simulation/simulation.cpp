@@ -197,7 +197,19 @@ Index Simulation::addNormalConstraint(Index vertex, std::optional<Vec3> normal) 
   // Without a normal: the current one (addNormal reports where there is none).
   const Vec3 direction =
       normal ? *normal : bestPlaneNormal(model_.mesh, state_.position, vertex).value_or(Vec3::UnitZ());
-  return constraints_.addNormal(model_.mesh, state_.position, vertex, direction);
+  const Index id = constraints_.addNormal(model_.mesh, state_.position, vertex, direction);
+  // Without angle springs the ring folds freely, and where it folds through a shape with no
+  // flattest direction its plane, hence the normal, jumps: no cycle can hold that
+  // (docs/semi-rigid-and-constraints.md, "Normal constraints").
+  std::vector<Index> ring;
+  normalFitVertices(model_.mesh, vertex, ring);
+  const VectorX& angular = model_.properties.angularStiffness;
+  if (std::any_of(ring.begin(), ring.end(), [&](Index v) { return !(angular[v] > 0.0); }))
+    warnings_.push_back("normal constraint at vertex " + std::to_string(vertex) +
+                        ": its ring has no angle springs, so it folds freely, and folded far "
+                        "enough it has no plane: the normal can then jump and the run "
+                        "diverge; paint angular stiffness there to hold it reliably");
+  return id;
 }
 
 void Simulation::setConstraintTarget(Index id, const Vec3& target) {

@@ -4,9 +4,11 @@
 //
 // The constrained vertices, the vertices of each constrained normal's best plane (vertex
 // plus one-ring), form the support S. A position constraint's unknown is the force on its
-// vertex; a normal constraint's is a couple on its plane's vertices, f_j = mu_j lambda x
-// (r_j - c) about their centre of mass c, so it exerts no net force. Where S ends up after
-// the step is modelled by StepResponse:
+// vertex; a normal constraint's are two weights lambda of forces along the gradient of its
+// plane's fitted normal n, f_j = d (n . a) / d r_j lambda for the two directions a across
+// the target (the constraint forces of RATTLE): they exert no net force, since a
+// translation does not turn the plane, and do no work along motions that keep the normal.
+// Where S ends up after the step is modelled by StepResponse:
 //
 //   elastic   r_e = r_e0 + C (f - f0): every scheme's position update is affine in the
 //             forces held over the step; C is exact for default (T^2/2 (1 - T^2/12 Omega^2)
@@ -17,11 +19,12 @@
 //             evaluated exactly.
 //
 // The cycle computes a step, anchors the model at it (r_e0, f0), lets ConstraintSolver
-// solve for the forces on the model (damped Newton on pin forces and plane couples
+// solve for the forces on the model (damped Newton on pin forces and plane weights
 // together; with pins alone and no rigid motion the model is linear and one step with
-// C's pseudo-inverse, built with the response, solves it), and recomputes the step: one correction makes the constraints hold to rounding for the
-// exact-response schemes; the others take a few. Velocities are then made consistent:
-// a pinned vertex moves with its target, a constrained plane does not turn.
+// C's pseudo-inverse, built with the response, solves it), and recomputes the step: one correction
+// makes the constraints hold to rounding for the exact-response schemes; the others take a few.
+// Velocities are then made consistent: a pinned vertex moves with its target, a constrained normal
+// does not move.
 
 #include <Eigen/Dense>
 #include <span>
@@ -68,6 +71,9 @@ class StepResponse {
   /// C^+ displacement, with C^+ the pseudo-inverse built with the response (least squares of
   /// minimum norm where C is singular, as for vertices with no elastic share).
   void elasticForceFor(const Points& displacement, Points& force) const;
+  /// How far the elastic positions (|S| x 3) move under a change of the virtual forces by
+  /// `force` (|S| x 3): C force.
+  void elasticDisplacement(const Points& force, Points& displacement) const;
 
  private:
   void rigidMotion(const Points& force, Vec3& centre, RigidDrift& drift) const;
@@ -101,8 +107,8 @@ class ConstraintSolver {
   /// Position in support() of a vertex, or -1.
   [[nodiscard]] Index local(Index vertex) const;
 
-  /// Starts a cycle at `position`: the geometry of the couples and the orientation of the
-  /// normals. The forces start from the previous cycle's (warm start).
+  /// Starts a cycle at `position`: the normals' orientation and gradients. The forces start from
+  /// the previous cycle's (warm start).
   void beginStep(const Mesh& mesh, const ConstraintSet& constraints, const Points& position,
                  const VectorX& mass);
   /// The virtual forces on the support (|S| x 3) for the current unknowns.
@@ -114,12 +120,14 @@ class ConstraintSolver {
   /// Improves the forces against `response` (anchored at the last computed step).
   void solve(const ConstraintSet& constraints, const StepResponse& response,
              double positionTolerance, double normalTolerance);
-  /// The part of forces() that are the planes' couples (|S| x 3).
+  /// The part of forces() that hold the planes' normals (|S| x 3; zero net force on each
+  /// plane): the gradient of the normal, times weights the solve finds.
   [[nodiscard]] const Points& coupleForces() const { return coupleForces_; }
   /// Velocity consistency at the end of the cycle, as velocity changes of the support
-  /// vertices (`delta`, |S| x 3): a plane's couple counts as an impulse at the start of the
-  /// cycle (the stepper's second half kick of it is taken back), a constrained plane does not
-  /// turn across its normal, a pinned vertex moves as its target did ((end - start) / T).
+  /// vertices (`delta`, |S| x 3): a plane's forces count as an impulse at the start of the
+  /// cycle (the stepper's second half kick of them is taken back), a constrained normal does
+  /// not move (the velocities are projected onto those that keep it, in the mass-weighted
+  /// norm), a pinned vertex moves as its target did ((end - start) / T).
   /// Vertices with no elastic share (sigma = 0) move with the rigid body: the last two leave
   /// them alone.
   void velocityCorrection(const ConstraintSet& constraints, double period,
@@ -136,14 +144,20 @@ class ConstraintSolver {
     Index id;
     std::vector<Index> locals;  // vertex first, then its one-ring
     std::vector<double> mass;
-    std::vector<Vec3> arm;      // r_j - c at the start of the step
-    Mat3 inertia = Mat3::Zero();  // sum m_j (|arm|^2 1 - arm arm^T)
+    std::vector<Vec3> arm;        // r_j - c at the start of the step
     double radius = 1.0;          // mean |arm|
+    // d (n . across_j) / d r_k at the start of the step, per vertex k (3 x 2): the plane's
+    // virtual forces are gradient_k lambda.
+    std::vector<Eigen::Matrix<double, 3, 2>> gradient;
     Eigen::Matrix<double, 3, 2> across = Eigen::Matrix<double, 3, 2>::Zero();  // _|_ target
     Vec3 hint = Vec3::UnitZ();    // the oriented normal at the start of the step
   };
   void assembleForces();
-  Vec3 planeNormal(const Plane& plane, const Points& supportPosition);
+  Vec3 planeNormal(const Plane& plane, const Points& supportPosition) const;
+  // d (n . across_j) / d r_k of the plane's fitted normal n at `supportPosition` (which it
+  // moves and restores), by central differences.
+  void normalGradient(const Plane& plane, Points& supportPosition,
+                      std::vector<Eigen::Matrix<double, 3, 2>>& out) const;
   double planeResidual(const ConstraintSet& constraints, const Plane& plane,
                        const Points& supportPosition, Vec3& rotation);
   void gatherSupport(const Points& all, Points& out) const;
@@ -152,18 +166,22 @@ class ConstraintSolver {
   std::vector<Index> localOf_;  // vertex -> position in support_, or -1
   std::vector<Pin> pins_;
   std::vector<Plane> planes_;
-  std::vector<Vec3> pinForce_, couple_;
+  std::vector<Vec3> pinForce_;
+  std::vector<Eigen::Vector2d> lambda_;  // per plane, the weights of its gradient forces
   Points forces_, coupleForces_, predicted_, supportEnd_;
-  std::vector<Vec3> points_;
+  mutable std::vector<Vec3> points_;
+  mutable Points scratch_;  // |S| x 3, for the end-of-step gradients
+  mutable std::vector<Eigen::Matrix<double, 3, 2>> endGradient_;
   double residual(const ConstraintSet& constraints, const StepResponse& response, VectorX& out,
                   double& positionError, double& normalError);
+  // Whether every plane's forces (as last assembled) move its ring by at most its diameter
+  // (twice its mean radius) in the cycle.
+  bool planesWithinReach(const StepResponse& response);
   void unknowns(VectorX& x) const;
   void setUnknowns(const VectorX& x);
 
-  bool solvePinsDirectly(const ConstraintSet& constraints, const StepResponse& response,
-                         double positionTolerance);
-
-  Points pinError_, pinStep_;  // |S| x 3, for solvePinsDirectly
+  Points pinError_, pinStep_;  // |S| x 3, for the pins-only solve
+  Points planeMotion_;         // |S| x 3, for planesWithinReach
   Eigen::MatrixXd jacobian_;
   Eigen::CompleteOrthogonalDecomposition<Eigen::MatrixXd> factor_;
   VectorX rhs_, step_, base_, trial_, shifted_;
