@@ -193,6 +193,9 @@ TEST(FuzzRegressions, TheCliEntryRefusesWhatCouldEscapeItsFolderOrRunLong) {
   EXPECT_EQ(status("info\nbuiltin:lattice:0100"), -1);
   EXPECT_EQ(status("simulate\nbuiltin:torus\nreproduce"), -1);
   EXPECT_TRUE(fuzz::smallBuiltin("builtin:torus:99:99"));
+  // The lattice's count is cubed: one digit (729 vertices at most).
+  EXPECT_TRUE(fuzz::smallBuiltin("builtin:lattice:9"));
+  EXPECT_FALSE(fuzz::smallBuiltin("builtin:lattice:76"));
 }
 
 // ---- the assimp corpus through the binary -------------------------------------------------
