@@ -177,8 +177,6 @@ void ConstraintSolver::setUp(const Mesh& mesh, const ConstraintSet& constraints)
       plane.id = c.id;
       normalFitVertices(mesh, c.vertex, fit);
       for (Index v : fit) plane.locals.push_back(local(v));
-      plane.mass.assign(fit.size(), 0.0);
-      plane.arm.assign(fit.size(), Vec3::Zero());
       plane.gradient.assign(fit.size(), Eigen::Matrix<double, 3, 2>::Zero());
       plane.hint = c.value;
       largestPlane = std::max(largestPlane, fit.size());
@@ -224,7 +222,6 @@ void ConstraintSolver::beginStep(const Mesh& mesh, const ConstraintSet& constrai
     Vec3 centre = Vec3::Zero();
     for (size_t k = 0; k < plane.locals.size(); ++k) {
       const Index v = support_[static_cast<size_t>(plane.locals[k])];
-      plane.mass[k] = mass[v];
       total += mass[v];
       centre += mass[v] * position.row(v).transpose();
     }
@@ -232,8 +229,8 @@ void ConstraintSolver::beginStep(const Mesh& mesh, const ConstraintSet& constrai
     plane.radius = 0.0;
     for (size_t k = 0; k < plane.locals.size(); ++k) {
       const Index v = support_[static_cast<size_t>(plane.locals[k])];
-      plane.arm[k] = position.row(v).transpose() - centre;
-      plane.radius += plane.arm[k].norm() / static_cast<double>(plane.locals.size());
+      plane.radius +=
+          (position.row(v).transpose() - centre).norm() / static_cast<double>(plane.locals.size());
     }
     // Two directions across the target normal: the components of the normal the forces
     // act on.
@@ -491,16 +488,16 @@ void ConstraintSolver::solve(const ConstraintSet& constraints, const StepRespons
   assembleForces();
 }
 
-void ConstraintSolver::velocityCorrection(const ConstraintSet& /*constraints*/, double period,
-                                          const Points& startPosition, const Points& endPosition,
-                                          const Points& velocity, const VectorX& mass,
-                                          std::span<const double> share, Points& delta) const {
+void ConstraintSolver::velocityCorrection(double period, const Points& startPosition,
+                                          const Points& endPosition, const Points& velocity,
+                                          const VectorX& mass, std::span<const double> share,
+                                          Points& delta) const {
   const double t = period;
   delta.setZero(static_cast<Index>(support_.size()), 3);
   auto sigma = [&](Index v) { return share.empty() ? 1.0 : share[static_cast<size_t>(v)]; };
   // 1. A plane's forces act as an impulse at the start of the cycle: the stepper held them
-  // over the whole cycle, and its second half kick, laid on arms that have turned since,
-  // would push the plane's vertices outwards; take it back.
+  // over the whole cycle, and their second half kick, along the start's gradient, which
+  // has turned since, would push the plane's vertices outwards; take it back.
   for (size_t a = 0; a < support_.size(); ++a) {
     const Index v = support_[a];
     delta.row(static_cast<Index>(a)) =

@@ -723,7 +723,8 @@ void preflightPlyBody(std::istream& in, const std::string& name, std::uintmax_t 
             // cursor where it was, so the next properties read the same digits again, and a
             // list count reads them as 32 bits
             // (tests/data/io/ply_vertex_list_count_of_21_digits_oom.ply: a 6.6 GB list).
-            // Otherwise the cursor moves past them (past all of them when `most` is set).
+            // Otherwise the cursor moves past all the digits, of which the value takes the
+            // first `most` (all when `most` is 0).
             auto unsignedDigits = [&](std::uint64_t& out, int most) {
               std::uint64_t v = 0;
               int n = 0;

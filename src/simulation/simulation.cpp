@@ -502,10 +502,9 @@ void Simulation::coupledStep() {
   }
   state_.time = trial_.time;
   if (constrained) {
-    solver_.velocityCorrection(constraints_, t, elasticStart_.position, state_.position,
-                               state_.velocity, mass,
-                               rigidActive_ ? std::span<const double>(sigma_) : std::span<const double>(),
-                               velocityDelta_);
+    solver_.velocityCorrection(
+        t, elasticStart_.position, state_.position, state_.velocity, mass,
+        rigidActive_ ? std::span<const double>(sigma_) : std::span<const double>(), velocityDelta_);
     const auto support = solver_.support();
     for (size_t a = 0; a < support.size(); ++a) {
       const Index v = support[a];

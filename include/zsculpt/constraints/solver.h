@@ -130,8 +130,7 @@ class ConstraintSolver {
   /// norm), a pinned vertex moves as its target did ((end - start) / T).
   /// Vertices with no elastic share (sigma = 0) move with the rigid body: the last two leave
   /// them alone.
-  void velocityCorrection(const ConstraintSet& constraints, double period,
-                          const Points& startPosition, const Points& endPosition,
+  void velocityCorrection(double period, const Points& startPosition, const Points& endPosition,
                           const Points& velocity, const VectorX& mass,
                           std::span<const double> elasticShare, Points& delta) const;
 
@@ -143,9 +142,7 @@ class ConstraintSolver {
   struct Plane {
     Index id;
     std::vector<Index> locals;  // vertex first, then its one-ring
-    std::vector<double> mass;
-    std::vector<Vec3> arm;        // r_j - c at the start of the step
-    double radius = 1.0;          // mean |arm|
+    double radius = 1.0;        // mean distance of its vertices from their centre of mass
     // d (n . across_j) / d r_k at the start of the step, per vertex k (3 x 2): the plane's
     // virtual forces are gradient_k lambda.
     std::vector<Eigen::Matrix<double, 3, 2>> gradient;
