@@ -9,6 +9,7 @@
 #include <type_traits>
 #include <unsupported/Eigen/MatrixFunctions>
 
+#include "filter_rows_impl.h"
 #include "zsculpt/core/errors.h"
 
 #ifdef _OPENMP
@@ -73,41 +74,15 @@ int maximumThreads() {
 #endif
 }
 
-// A point (x, y, z) as one SSE2 register (x, y) and a double (z): the drift filter's row
-// kernels work on whole points. Element by element the operations, and their order, are
-// those of scalar code, so the results are the same bits.
-using Pair = double __attribute__((vector_size(16)));
-struct PackedPoint {
-  Pair xy = {0.0, 0.0};
-  double z = 0.0;
-};
-inline PackedPoint operator+(PackedPoint a, PackedPoint b) {
-  return {a.xy + b.xy, a.z + b.z};
-}
-inline PackedPoint operator-(PackedPoint a, PackedPoint b) {
-  return {a.xy - b.xy, a.z - b.z};
-}
-inline PackedPoint operator*(double s, PackedPoint a) {
-  return {s * a.xy, s * a.z};
-}
-inline PackedPoint operator*(PackedPoint a, double s) {
-  return {a.xy * s, a.z * s};
-}
-inline PackedPoint& operator+=(PackedPoint& a, PackedPoint b) {
-  return a = a + b;
-}
-inline PackedPoint& operator-=(PackedPoint& a, PackedPoint b) {
-  return a = a - b;
-}
+// Points packed as the drift filter's row kernels pack them (filter_rows_impl.h).
+using filter_rows::PackedPoint;
 
 inline PackedPoint loadPoint(const double* p) {
-  return {Pair{p[0], p[1]}, p[2]};
+  return PackedPoint::load(p);
 }
 
 inline void storePoint(double* p, PackedPoint v) {
-  p[0] = v.xy[0];
-  p[1] = v.xy[1];
-  p[2] = v.z;
+  v.store(p);
 }
 
 // (A u)_i for the N x N CSR matrix A and N x 3 points u.
@@ -305,7 +280,7 @@ size_t Stepper::bytes() const {
          {&transformation_->omega4(), &transformation_->h(), &transformation_->hPrime(),
           &transformation_->hSecond(), &transformation_->x(), &transformation_->xPrime()})
       total += sparse(*m);
-  total += dense(affineBasis_) + dense(omegaBasis_) + dense(affineMass_) +
+  total += dense(affineBasis_) + dense(omegaBasis_) + dense(massBases_) + dense(affineMass_) +
            affinePartial_.size() * sizeof(double) + affineRows_.capacity() * sizeof(Index);
   total += dense(modes_) + dense(propagator_) + dense(modal1_) + dense(modal2_) + dense(modal3_);
   if (implicit_)
@@ -434,6 +409,7 @@ void Stepper::setUpAffine(std::span<const Index> vertices) {
     affineBasis_.leftCols(affineRank_) =
         qr.householderQ() * Eigen::MatrixXd::Identity(n, affineRank_);
     omegaBasis_.setZero(n, 4);
+    massBases_.setZero(n, 8);
     affineMass_ = mass;
     affineGram_.setZero();
     affineStiffness_.setZero();
@@ -466,6 +442,7 @@ void Stepper::setUpAffine(std::span<const Index> vertices) {
     for (SparseRowMatrix::InnerIterator it(o2, i); it; ++it)
       product += it.value() * affineBasis_.row(it.col()).transpose();
     omegaBasis_.row(i) = product.transpose();
+    massBases_.row(i) << mass[i] * b.transpose(), mass[i] * product.transpose();
     affineMass_[i] = mass[i];
     affineGram_ += mass[i] * b * b.transpose();
     affineStiffness_ += mass[i] * b * product.transpose();
@@ -553,6 +530,13 @@ void Stepper::stepDefault(State& s, const Points& external, std::span<const doub
   double* v = s.velocity.data();
   double* kick = kick_.data();
   const bool stored = model_.mesh.numVertices() <= kStoredAccelerationVertices;
+  // The row passes that need no loads (filter_rows.h): AVX2 where the processor has it.
+  const filter_rows::Kernels& rows = filter_rows::kernels(options_.wideKernels);
+  filter_rows::Inputs in;
+  in.outer = outer;
+  in.inner = inner;
+  in.value = value;
+  in.dampHalf = dampHalf_.data();
   bool externalZero = true;
 #pragma omp parallel num_threads(threads_) if (threads_ > 1)
   {
@@ -578,12 +562,6 @@ void Stepper::stepDefault(State& s, const Points& external, std::span<const doub
       acceleration(loads, withGravity, withShare, f, i, a, total);
       storePoint(out, half * loadPoint(a) - filter * w);
     };
-    // The same from stored accelerations.
-    auto storedKick = [&](Index i, double* out) {
-      const double* a = acceleration_.data();
-      const PackedPoint w = packedRowProduct(outer, inner, value, a, i);
-      storePoint(out, half * loadPoint(a + 3 * static_cast<size_t>(i)) - filter * w);
-    };
     if (!reuse && !startCached) {
       forces_.scatter(model_, s.position, internal_);
 #pragma omp for schedule(static)
@@ -592,19 +570,24 @@ void Stepper::stepDefault(State& s, const Points& external, std::span<const doub
     // Kick and drift; with loads, the total force at the start on the way (lastTotalForce).
     const double* f0 = internal_.data();
     double* total = zero ? nullptr : totalForce_.data();
-    withCase([&](auto loads, auto withGravity, auto withShare) {
+    if (reuse) {
 #pragma omp for schedule(static)
       for (Index b = 0; b < blocks; ++b)
-        for (Index i = forces_.blockBegin(b); i < forces_.blockEnd(b); ++i) {
-          const size_t k = 3 * static_cast<size_t>(i);
-          if (!reuse)
+        rows.plainDrift(in, forces_.blockBegin(b), forces_.blockEnd(b), v, kick, r, t);
+    } else {
+      withCase([&](auto loads, auto withGravity, auto withShare) {
+#pragma omp for schedule(static)
+        for (Index b = 0; b < blocks; ++b)
+          for (Index i = forces_.blockBegin(b); i < forces_.blockEnd(b); ++i) {
+            const size_t k = 3 * static_cast<size_t>(i);
             filteredKick(loads, withGravity, withShare, f0, i, kick + k,
                          total ? total + k : nullptr);
-          const PackedPoint vi = loadPoint(v + k) * dampHalf_[i] + loadPoint(kick + k);
-          storePoint(v + k, vi);
-          storePoint(r + k, loadPoint(r + k) + t * vi);
-        }
-    });
+            const PackedPoint vi = loadPoint(v + k) * dampHalf_[i] + loadPoint(kick + k);
+            storePoint(v + k, vi);
+            storePoint(r + k, loadPoint(r + k) + t * vi);
+          }
+      });
+    }
     // Internal forces at the new position.
     forces_.scatter(model_, s.position, previousInternal_);
     const double* f1 = previousInternal_.data();
@@ -623,18 +606,22 @@ void Stepper::stepDefault(State& s, const Points& external, std::span<const doub
       for (Index b = 0; b < blocks; ++b) forces_.gatherBlock(b, previousInternal_);
     }
     // Second kick and damping.
-    withCase([&](auto loads, auto withGravity, auto withShare) {
+    if (stored) {
 #pragma omp for schedule(static)
       for (Index b = 0; b < blocks; ++b)
-        for (Index i = forces_.blockBegin(b); i < forces_.blockEnd(b); ++i) {
-          const size_t k = 3 * static_cast<size_t>(i);
-          if (stored)
-            storedKick(i, kick + k);
-          else
+        rows.plainKick(in, forces_.blockBegin(b), forces_.blockEnd(b), acceleration_.data(), kick,
+                       v, half, filter);
+    } else {
+      withCase([&](auto loads, auto withGravity, auto withShare) {
+#pragma omp for schedule(static)
+        for (Index b = 0; b < blocks; ++b)
+          for (Index i = forces_.blockBegin(b); i < forces_.blockEnd(b); ++i) {
+            const size_t k = 3 * static_cast<size_t>(i);
             filteredKick(loads, withGravity, withShare, f1, i, kick + k, nullptr);
-          storePoint(v + k, (loadPoint(v + k) + loadPoint(kick + k)) * dampHalf_[i]);
-        }
-    });
+            storePoint(v + k, (loadPoint(v + k) + loadPoint(kick + k)) * dampHalf_[i]);
+          }
+      });
+    }
 #pragma omp single
     externalZero = zero;
   }
@@ -666,13 +653,9 @@ void Stepper::stepDriftFiltered(State& s, const Points& external, std::span<cons
   const bool startCached = cacheValid_;
   const bool reuseCandidate = cacheValid_ && kickValid_ && share.empty();
   const SparseRowMatrix& o2 = system_.omega2();
-  const Index* outer = o2.outerIndexPtr();
-  const Index* inner = o2.innerIndexPtr();
-  const double* value = o2.valuePtr();
   const double* inverseMass = system_.inverseMass().data();
   const double* mass = model_.properties.mass.data();
-  const double* basis = affineBasis_.data();
-  const double* omegaBasis = omegaBasis_.data();
+  const double* massBases = massBases_.data();
   const Vec3 g = model_.properties.gravity;
   const bool gravity = !g.isZero();
   const double* e = external.data();
@@ -684,101 +667,83 @@ void Stepper::stepDriftFiltered(State& s, const Points& external, std::span<cons
   double* w2 = work2_.data();
   double* partial = affinePartial_.data();
   double* coefficient = affineCoefficient_.data();  // c (4 x 3) then d (4 x 3)
+  double* velocityC = velocityCoefficient_.data();
+  // The row passes (filter_rows.h): AVX2 where the processor has it, the same bits.
+  const filter_rows::Kernels& rows = filter_rows::kernels(options_.wideKernels);
+  const filter_rows::Inputs in{o2.outerIndexPtr(),  o2.innerIndexPtr(), o2.valuePtr(),
+                               affineBasis_.data(), omegaBasis_.data(), massBases,
+                               coefficient,         dampHalf_.data()};
   bool externalZero = true;
 #pragma omp parallel num_threads(threads_) if (threads_ > 1)
   {
     const bool zero = markZeroExternalBlocks(external);
     const bool reuse = reuseCandidate && zero;
-    // (T/2) Phi a at row i: (T/2) a_i - (T^3/24) (Omega^2 a)_i, with a_j from the internal
-    // forces f (and the total force on the way).
     const AccelerationInputs inputs{e, mass, inverseMass, share, g};
     auto withCase = [&](auto&& body) { withLoadCase(!zero, gravity, !share.empty(), body); };
-    auto acceleration = [&](auto loads, auto withGravity, auto withShare, const double* f, Index j,
-                            double a[3], double* sum) {
-      accelerationRow(inputs, loads, withGravity, withShare, f, j, a, sum);
-    };
-    // Block b's share of B^T M u and (Omega^2 B)^T M u (24 numbers), from row i's term
-    // on: the passes that make u add each row's term as they write it (sumRow), while it
-    // is in a register.
-    struct BlockSum {
-      PackedPoint basis[4] = {}, omega[4] = {};
-    };
-    auto sumRow = [&](BlockSum& sum, Index i, PackedPoint ui) {
-      for (int q = 0; q < 4; ++q) {
-        sum.basis[q] += (mass[i] * basis[4 * static_cast<size_t>(i) + q]) * ui;
-        sum.omega[q] += (mass[i] * omegaBasis[4 * static_cast<size_t>(i) + q]) * ui;
-      }
-    };
-    auto storeSum = [&](Index b, const BlockSum& sum) {
-      double* out = partial + 24 * static_cast<size_t>(b);
-      for (int q = 0; q < 4; ++q) {
-        storePoint(out + 3 * q, sum.basis[q]);
-        storePoint(out + 12 + 3 * q, sum.omega[q]);
-      }
-    };
-    // c and d of the vector whose block sums were just made.
-    PackedPoint localC[4], localD[4];
-    auto combine = [&] {
+    auto blockPartial = [&](Index b) { return partial + 24 * static_cast<size_t>(b); };
+    // c and d of the vector whose block sums were just made: B^T M u (rows 0-11 of each
+    // block's partial sums) and (Omega^2 B)^T M u (rows 12-23), added in block order by one
+    // thread, so the result does not depend on the thread count. With knownScale, c is that
+    // multiple of the velocity's c (saved when the velocity was summed) and only
+    // (Omega^2 B)^T M u was summed.
+    auto combine = [&](bool saveVelocity, const double* knownScale) {
 #pragma omp single
       {
         Eigen::Matrix<double, 4, 3> bu = Eigen::Matrix<double, 4, 3>::Zero(), ku = bu;
         for (Index b = 0; b < blocks; ++b) {
-          const double* p = partial + 24 * static_cast<size_t>(b);
+          const double* p = blockPartial(b);
           for (int q = 0; q < 4; ++q)
             for (int d = 0; d < 3; ++d) {
-              bu(q, d) += p[3 * q + d];
+              if (!knownScale) bu(q, d) += p[3 * q + d];
               ku(q, d) += p[12 + 3 * q + d];
             }
         }
-        const Eigen::Matrix<double, 4, 3> c = affineInverseGram_ * bu;
+        Eigen::Matrix<double, 4, 3> c;
+        if (knownScale)
+          c = *knownScale *
+              Eigen::Map<const Eigen::Matrix<double, 4, 3, Eigen::RowMajor>>(velocityC);
+        else
+          c = affineInverseGram_ * bu;
         const Eigen::Matrix<double, 4, 3> d = affineInverseGram_ * (ku - affineStiffness_ * c);
         for (int q = 0; q < 4; ++q)
           for (int k = 0; k < 3; ++k) {
             coefficient[3 * q + k] = c(q, k);
             coefficient[12 + 3 * q + k] = d(q, k);
+            if (saveVelocity) velocityC[3 * q + k] = c(q, k);
           }
       }
-      // Each thread's own copy, which the compiler may keep in registers across a pass
-      // (through the shared array every row would reload all 24).
-      for (int q = 0; q < 4; ++q) {
-        localC[q] = loadPoint(coefficient + 3 * q);
-        localD[q] = loadPoint(coefficient + 12 + 3 * q);
-      }
-    };
-    // (W u)_i with the coefficients of u.
-    auto product = [&](const double* u, Index i) {
-      PackedPoint w = packedRowProduct(outer, inner, value, u, i);
-      for (int q = 0; q < 4; ++q)
-        w -= omegaBasis[4 * static_cast<size_t>(i) + q] * localC[q] +
-             basis[4 * static_cast<size_t>(i) + q] * localD[q];
-      return w;
     };
     // kick_ = (T/2) Phi a = (T/2) a - (T^3/24) W a, from the internal forces f; with loads,
-    // the total force on the way (lastTotalForce). The second kick (last) also finishes the
+    // the total force on the way (lastTotalForce). The accelerations' pass sums them for W
+    // (in the row, while it is in a register). The second kick (last) also finishes the
     // velocity, v = (v + kick) e^{-GT/2}, in the same pass.
     auto filteredKick = [&](const double* f, double* total, bool last) {
       withCase([&](auto loads, auto withGravity, auto withShare) {
 #pragma omp for schedule(static)
         for (Index b = 0; b < blocks; ++b) {
           if (f == previousInternal_.data()) forces_.gatherBlock(b, previousInternal_);
-          BlockSum sum;
+          PackedPoint basisSum[4], omegaSum[4];
           for (Index i = forces_.blockBegin(b); i < forces_.blockEnd(b); ++i) {
             const size_t k = 3 * static_cast<size_t>(i);
-            acceleration(loads, withGravity, withShare, f, i, acc + k, total ? total + k : nullptr);
-            sumRow(sum, i, loadPoint(acc + k));
+            accelerationRow(inputs, loads, withGravity, withShare, f, i, acc + k,
+                            total ? total + k : nullptr);
+            const PackedPoint ai = loadPoint(acc + k);
+            const double* mb = massBases + 8 * static_cast<size_t>(i);
+            for (int q = 0; q < 4; ++q) {
+              basisSum[q] += mb[q] * ai;
+              omegaSum[q] += mb[4 + q] * ai;
+            }
           }
-          storeSum(b, sum);
+          for (int q = 0; q < 4; ++q) {
+            storePoint(blockPartial(b) + 3 * q, basisSum[q]);
+            storePoint(blockPartial(b) + 12 + 3 * q, omegaSum[q]);
+          }
         }
       });
-      combine();
+      combine(false, nullptr);
 #pragma omp for schedule(static)
       for (Index b = 0; b < blocks; ++b)
-        for (Index i = forces_.blockBegin(b); i < forces_.blockEnd(b); ++i) {
-          const size_t k = 3 * static_cast<size_t>(i);
-          const PackedPoint kicked = half * loadPoint(acc + k) - filter * product(acc, i);
-          storePoint(kick + k, kicked);
-          if (last) storePoint(v + k, (loadPoint(v + k) + kicked) * dampHalf_[i]);
-        }
+        rows.kick(in, forces_.blockBegin(b), forces_.blockEnd(b), acc, kick, v, half, filter, last);
     };
     if (!reuse) {
       if (!startCached) {
@@ -790,45 +755,26 @@ void Stepper::stepDriftFiltered(State& s, const Points& external, std::span<cons
     }
     // First kick and damping.
 #pragma omp for schedule(static)
-    for (Index b = 0; b < blocks; ++b) {
-      BlockSum sum;
-      for (Index i = forces_.blockBegin(b); i < forces_.blockEnd(b); ++i) {
-        const size_t k = 3 * static_cast<size_t>(i);
-        const PackedPoint vi = loadPoint(v + k) * dampHalf_[i] + loadPoint(kick + k);
-        storePoint(v + k, vi);
-        sumRow(sum, i, vi);
-      }
-      storeSum(b, sum);
-    }
+    for (Index b = 0; b < blocks; ++b)
+      rows.velocity(in, forces_.blockBegin(b), forces_.blockEnd(b), v, kick, blockPartial(b));
+    combine(true, nullptr);
     // The drift, Psi v by Horner: w1 = a3 v + a4 T^2 W v; w2 = a2 v + T^2 W w1;
-    // w1 = a1 v + T^2 W w2; r += T (v + T^2 W w1).
-    auto drift = [&] {
-      combine();
-      auto hornerPass = [&](const double* u, double* out, double a, double b4) {
-#pragma omp for schedule(static)
-        for (Index b = 0; b < blocks; ++b) {
-          BlockSum sum;
-          for (Index i = forces_.blockBegin(b); i < forces_.blockEnd(b); ++i) {
-            const size_t k = 3 * static_cast<size_t>(i);
-            const PackedPoint o = a * loadPoint(v + k) + (b4 * t2) * product(u, i);
-            storePoint(out + k, o);
-            sumRow(sum, i, o);
-          }
-          storeSum(b, sum);
-        }
-        combine();
-      };
-      hornerPass(v, w1, a3, a4);
-      hornerPass(w1, w2, a2, 1.0);
-      hornerPass(w2, w1, a1, 1.0);
+    // w1 = a1 v + T^2 W w2; r += T (v + T^2 W w1). B^T M W = 0 (W = (I - P) Omega^2 (I - P),
+    // P M-orthogonal), so B^T M (a v + T^2 W u) = a B^T M v: each term's c is a times the
+    // velocity's, and only (Omega^2 B)^T M of it is summed.
+    auto hornerPass = [&](const double* u, double* out, double a, double scale) {
 #pragma omp for schedule(static)
       for (Index b = 0; b < blocks; ++b)
-        for (Index i = forces_.blockBegin(b); i < forces_.blockEnd(b); ++i) {
-          const size_t k = 3 * static_cast<size_t>(i);
-          storePoint(r + k, loadPoint(r + k) + t * (loadPoint(v + k) + t2 * product(w1, i)));
-        }
+        rows.horner(in, forces_.blockBegin(b), forces_.blockEnd(b), u, v, out, a, scale,
+                    blockPartial(b));
+      combine(false, &a);
     };
-    drift();
+    hornerPass(v, w1, a3, a4 * t2);
+    hornerPass(w1, w2, a2, t2);
+    hornerPass(w2, w1, a1, t2);
+#pragma omp for schedule(static)
+    for (Index b = 0; b < blocks; ++b)
+      rows.drift(in, forces_.blockBegin(b), forces_.blockEnd(b), w1, v, r, t, t2);
     // Internal forces at the new position, the second kick and damping.
     forces_.scatter(model_, s.position, previousInternal_);
     filteredKick(previousInternal_.data(), nullptr, true);

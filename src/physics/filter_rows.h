@@ -1,0 +1,59 @@
+#pragma once
+// The default scheme's drift-filter row kernels (docs/solver.md section 6): the passes of
+// stepDriftFiltered over one block's rows, built twice, for the x86-64 baseline and for
+// AVX2, and chosen at run time. Both do the same IEEE operations in the same order on
+// each coordinate (no FMA contraction), so they give the same bits. Private to physics:
+// the AVX2 build must see no inline code that other files share (filter_rows_impl.h).
+
+#include <cstdint>
+
+namespace zsculpt::filter_rows {
+
+/// What every pass reads: Omega^2 in CSR, the affine basis B, Omega^2 B, per row m_i B_i
+/// then m_i (Omega^2 B)_i, and the coefficients c (4 x 3) then d (4 x 3) of the vector
+/// whose W product the pass takes (W u = Omega^2 u - (Omega^2 B) c - B d).
+struct Inputs {
+  const std::int32_t* outer = nullptr;
+  const std::int32_t* inner = nullptr;
+  const double* value = nullptr;
+  const double* basis = nullptr;
+  const double* omegaBasis = nullptr;
+  const double* massBases = nullptr;
+  const double* coefficient = nullptr;
+  const double* dampHalf = nullptr;
+};
+
+/// The passes, each over rows [begin, end). A pass that sums writes the block's 24 partial
+/// sums (B^T M x then (Omega^2 B)^T M x, 4 x 3 each, row by row) to partial; one that sums
+/// only the second leaves the first 12 alone.
+struct Kernels {
+  /// kick = half a - filter (W a); with last, v = (v + kick) e^{-GT/2} too.
+  void (*kick)(const Inputs&, std::int32_t begin, std::int32_t end, const double* a, double* kick,
+               double* v, double half, double filter, bool last);
+  /// v = v e^{-GT/2} + kick, summed.
+  void (*velocity)(const Inputs&, std::int32_t begin, std::int32_t end, double* v,
+                   const double* kick, double* partial);
+  /// out = a v + scale (W u), its (Omega^2 B)^T M sum only.
+  void (*horner)(const Inputs&, std::int32_t begin, std::int32_t end, const double* u,
+                 const double* v, double* out, double a, double scale, double* partial);
+  /// r += t (v + t2 (W w)).
+  void (*drift)(const Inputs&, std::int32_t begin, std::int32_t end, const double* w,
+                const double* v, double* r, double t, double t2);
+  // The kick filter alone (stepDefault; only outer, inner, value and dampHalf are read):
+  /// kick = half a - filter (Omega^2 a), then v = (v + kick) e^{-GT/2}.
+  void (*plainKick)(const Inputs&, std::int32_t begin, std::int32_t end, const double* a,
+                    double* kick, double* v, double half, double filter);
+  /// v = v e^{-GT/2} + kick, then r += t v.
+  void (*plainDrift)(const Inputs&, std::int32_t begin, std::int32_t end, double* v,
+                     const double* kick, double* r, double t);
+};
+
+/// The AVX2 kernels where wide is set and the processor has AVX2, else the baseline.
+const Kernels& kernels(bool wide);
+/// Whether kernels(true) gives the AVX2 ones on this processor.
+bool wideAvailable();
+
+// Defined in filter_rows_avx2.cpp (built with -mavx2); call only where AVX2 is present.
+const Kernels& avx2Kernels();
+
+}  // namespace zsculpt::filter_rows
