@@ -321,6 +321,13 @@ TEST(MeshImport, BadFilesGiveOneLineErrorsNamingTheFile) {
       // digits, which the list count then reads as 1661992959 items (13 GB).
       {data("ply_float_exponent_of_20_digits_then_list.ply"),
        "the list in vertex 0 (at byte 116) counts 1661992959 items"},
+      // An element whose name assimp 5.2 does not know takes its count from the name: "2" is
+      // two of them to it, each with a list of 1879048192 items (15 GB, 40 s); the walk
+      // used to read the count after the name, none. The fuzzer's input, 4.3 GB.
+      {data("ply_element_named_by_its_count_then_list.ply"),
+       "the list in 2 0 (at byte 172) counts 1879048192 items"},
+      {data("ply_element_named_by_its_count_oom.ply"),
+       "the list in 6 0 (at byte 313) counts 540024880 items"},
       // "end_header" as the file's last bytes, no line end: assimp 5.2 never ends the header
       // when an earlier, longer line left a letter after it in its line buffer.
       {data("ply_end_header_at_end_of_file_hangs.ply"),

@@ -919,8 +919,19 @@ void preflightPly(std::istream& in, const std::string& name, std::uintmax_t size
       // digits was 4294967294 vertices to it, read for 40 s from a 1 KB file
       // (tests/regressions/mesh/ply_count_of_63_digits_times_out). Any count beyond 64 bits
       // is refused, the rest checked against the file's size.
+      // Its count follows the name only where assimp knows the name (ParseSemantic
+      // consumes the word): for any other name it reads the count from the name itself, so
+      // "element 6 afec" is six elements of a list to it, "element foo 5" none. Read as the
+      // first, an element with a list of 540 million items passed for empty
+      // (tests/regressions/mesh/ply_element_named_by_its_count_oom, found by the mesh fuzzer).
       std::string element, digits;
-      if (!(words >> element >> digits)) continue;
+      if (!(words >> element)) continue;
+      const bool named = element == "vertex" || element == "face" || element == "tristrips" ||
+                         element == "edge" || element == "material";
+      if (!named)
+        digits = element;
+      else if (!(words >> digits))
+        continue;
       std::uintmax_t count = 0;
       for (const char c : digits) {
         if (c < '0' || c > '9') break;
