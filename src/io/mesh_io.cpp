@@ -586,10 +586,16 @@ std::uint64_t plyListCount(PlyType type, std::uint64_t bits, double real) {
 // character first skips through the next '\n'. The line is copied over the same buffer
 // each time, followed by '\n', and the buffer keeps what longer lines left behind it: the
 // parser can run past a short line's end into them (SkipSpacesAndLineEnd between
-// properties), so they are kept here too.
+// properties), so they are kept here too. Before the first line the buffer holds what the
+// header's lines left in it (shifted by the header parser's erasures): not modelled, only
+// its extent, at most the longest header line, which fromHeader marks.
 class PlyTextLines {
  public:
-  explicit PlyTextLines(std::istream& in) : in_(in) {}
+  PlyTextLines(std::istream& in, size_t headerLeftover)
+      : in_(in), buffer_(headerLeftover + 64, '\0'), fromHeader_(headerLeftover + 64, false) {
+    std::fill(fromHeader_.begin(),
+              fromHeader_.begin() + static_cast<std::ptrdiff_t>(headerLeftover), true);
+  }
   /// The next line into buffer(); false at the end of the text.
   bool next() {
     if (eof()) return false;
@@ -601,10 +607,12 @@ class PlyTextLines {
     size_t length = 0;
     lineStart_ = offset_;
     while (!eof() && !isLineEnd(peek())) {
-      if (length + 2 > buffer_.size()) buffer_.resize(2 * buffer_.size() + 64, '\0');
+      if (length + 2 > buffer_.size()) grow();
+      fromHeader_[length] = false;
       buffer_[length++] = get();
     }
-    if (length + 2 > buffer_.size()) buffer_.resize(2 * buffer_.size() + 64, '\0');
+    if (length + 2 > buffer_.size()) grow();
+    fromHeader_[length] = false;
     buffer_[length] = '\n';
     lineLength_ = length;
     if (!eof()) (void)get();
@@ -616,8 +624,14 @@ class PlyTextLines {
   std::uintmax_t lineStart() const { return lineStart_; }
   size_t lineLength() const { return lineLength_; }
   static bool isLineEnd(char c) { return c == '\r' || c == '\n' || c == '\f' || c == '\0'; }
+  /// Whether buffer()[i] is still what the header left: its content is not known here.
+  bool fromHeader(size_t i) const { return i < fromHeader_.size() && fromHeader_[i]; }
 
  private:
+  void grow() {
+    buffer_.resize(2 * buffer_.size() + 64, '\0');
+    fromHeader_.resize(buffer_.size(), false);
+  }
   bool eof() {
     if (at_ < chunk_.size()) return false;
     chunk_.resize(65536);
@@ -636,7 +650,8 @@ class PlyTextLines {
   size_t at_ = 0;
   std::uintmax_t offset_ = 0, lineStart_ = 0;
   size_t lineLength_ = 0;
-  std::string buffer_ = std::string(64, '\0');
+  std::string buffer_;
+  std::vector<bool> fromHeader_;
 };
 
 // Assimp 5.2 sizes every list by the count it reads before reading the list
@@ -648,7 +663,8 @@ class PlyTextLines {
 // walks it and every list count checked against the bytes left in the file: a list cannot
 // hold more items than that.
 void preflightPlyBody(std::istream& in, const std::string& name, std::uintmax_t size,
-                      const std::vector<PlyElement>& elements, bool ascii, bool bigEndian) {
+                      const std::vector<PlyElement>& elements, bool ascii, bool bigEndian,
+                      size_t headerLeftover) {
   const std::streamoff start = in.tellg();
   if (start < 0) return;
   const std::uintmax_t bodyStart = static_cast<std::uintmax_t>(start);
@@ -666,14 +682,28 @@ void preflightPlyBody(std::istream& in, const std::string& name, std::uintmax_t 
   if (ascii) {
     // Elements of a known semantic (vertex, face, tristrips, edge, material) are parsed one
     // line per instance (PLY::PropertyInstance::ParseInstance); the others' lines skipped.
-    PlyTextLines lines(in);
+    PlyTextLines lines(in, headerLeftover);
     for (const PlyElement& element : elements)
       for (std::uint32_t k = 0; k < element.count; ++k) {
         if (!lines.next()) return;
         if (!element.parsedAsText) continue;
         const std::string& b = lines.buffer();
         size_t p = 0;
-        auto at = [&](size_t i) { return i < b.size() ? b[i] : '\0'; };
+        // A line with fewer values than the element has properties: assimp 5.2 reads the
+        // rest past the line's end, and on the first lines that is what the header left in
+        // its line buffer. A header line of digits made the list count of 954437176 items
+        // (7.6 GB, 40 s) from a 1.4 kB file (tests/regressions/mesh/
+        // ply_short_line_reads_the_header_leftover_oom, found by the mesh fuzzer).
+        bool parsing = false;
+        auto at = [&](size_t i) {
+          if (parsing && lines.fromHeader(i))
+            preflightError(name, printable(element.name) + " " + std::to_string(k) +
+                                     " (the line at byte " +
+                                     std::to_string(bodyStart + lines.lineStart()) +
+                                     ") has fewer values than properties: assimp 5.2 would "
+                                     "read the rest from what the header left in its buffer");
+          return i < b.size() ? b[i] : '\0';
+        };
         auto skipSpaces = [&] {  // Assimp::SkipSpaces
           while (at(p) == ' ' || at(p) == '\t') ++p;
           return !PlyTextLines::isLineEnd(at(p));
@@ -766,7 +796,11 @@ void preflightPlyBody(std::istream& in, const std::string& name, std::uintmax_t 
           return true;
         };
         for (const PlyProperty& property : element.properties) {
-          if (!skipSpaces()) continue;  // "Unable to parse property instance": the next one
+          parsing = true;
+          if (!skipSpaces()) {
+            parsing = false;
+            continue;  // "Unable to parse property instance": the next one
+          }
           std::uint64_t bits = 0;
           double real = 0.0;
           if (!value(property.list ? property.count : property.item, bits, real)) return;
@@ -785,9 +819,15 @@ void preflightPlyBody(std::istream& in, const std::string& name, std::uintmax_t 
               if (!value(property.item, bits, real)) return;
               if (p == before) break;  // no digits: the rest of the list reads nothing too
             }
-            if (stopped) continue;  // ParseInstance returned false: no line-end skip
+            if (stopped) {
+              parsing = false;
+              continue;  // ParseInstance returned false: no line-end skip
+            }
           }
-          // SkipSpacesAndLineEnd: spaces and line ends, up to a '\0'.
+          // SkipSpacesAndLineEnd: spaces and line ends, up to a '\0'. (Past the last
+          // property it may run into the header's leftovers harmlessly: the next line
+          // starts over.)
+          parsing = false;
           while (at(p) == ' ' || at(p) == '\t' || at(p) == '\r' || at(p) == '\n') ++p;
         }
       }
@@ -862,9 +902,11 @@ void preflightPly(std::istream& in, const std::string& name, std::uintmax_t size
   std::string line;
   bool ascii = false, magic = false, ended = false, bigEndian = false;
   std::uintmax_t total = 0;
+  size_t longestLine = 0;  // what the header can leave in assimp's line buffer
   std::vector<PlyElement> elements;
   bool inElement = false;  // property lines still belong to the last element
   for (int lines = 0; lines < 10000 && std::getline(in, line); ++lines) {
+    longestLine = std::max(longestLine, line.size() + 1);
     std::istringstream words(line);
     std::string keyword;
     words >> keyword;
@@ -977,7 +1019,7 @@ void preflightPly(std::istream& in, const std::string& name, std::uintmax_t size
   // The body starts after the end_header line's first line-end character, as assimp reads
   // it ("\r\n" leaves the "\n" in the body).
   if (!line.empty() && line.back() == '\r') in.seekg(-1, std::ios::cur);
-  preflightPlyBody(in, name, size, elements, ascii, bigEndian);
+  preflightPlyBody(in, name, size, elements, ascii, bigEndian, longestLine);
 }
 
 void preflightObj(std::istream& in, const std::string& name) {
