@@ -340,6 +340,18 @@ TEST(MeshImport, BadFilesGiveOneLineErrorsNamingTheFile) {
        "vertex 0 (the line at byte 197) has fewer values than properties"},
       {data("ply_short_line_reads_the_header_leftover_oom.ply"),
        "vertex 0 (the line at byte 679) has fewer values than properties"},
+      // At the end of the text assimp 5.2 parses its last line again for every instance
+      // still to come: the face reads the last vertex's line, whose 999999999 is its count.
+      {data("ply_last_line_read_again_for_a_face.ply"),
+       "the list in face 0 (at byte 173) counts 999999999 items"},
+      // A last line without a line end is copied over the buffer with no '\n' after it:
+      // "4" over "000000000 -0.000000" reads as 400000000.
+      {data("ply_last_line_without_line_end.ply"),
+       "the list in face 0 (at byte 187) counts 400000000 items"},
+      // The header's lines split at a NUL as assimp splits them: vertex has x only, and its
+      // six faces read the same 400000000.
+      {data("ply_property_line_split_at_a_nul_oom.ply"),
+       "the list in face 5 (at byte 556) counts 400000000 items"},
       // "end_header" as the file's last bytes, no line end: assimp 5.2 never ends the header
       // when an earlier, longer line left a letter after it in its line buffer.
       {data("ply_end_header_at_end_of_file_hangs.ply"),

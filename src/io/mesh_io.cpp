@@ -611,11 +611,19 @@ class PlyTextLines {
       fromHeader_[length] = false;
       buffer_[length++] = get();
     }
+    lineLength_ = length;
+    anyLine_ = anyLine_ || length > 0;
+    // A last line with no line end: assimp copies it, writes no '\n' after it and reports
+    // it unread, so the rest of the buffer (an earlier, longer line's end) reads on after it
+    // ("4" over "000000000 -0.000000" made vertices of 400000000 and face lists of as many
+    // items: tests/regressions/mesh/ply_last_line_without_line_end_oom, found by the mesh
+    // fuzzer).
+    if (eof()) return false;
     if (length + 2 > buffer_.size()) grow();
     fromHeader_[length] = false;
     buffer_[length] = '\n';
-    lineLength_ = length;
-    if (!eof()) (void)get();
+    (void)get();
+    anyLine_ = true;
     return true;
   }
   /// The line buffer: the line, '\n', then what earlier lines left, then '\0's.
@@ -626,6 +634,8 @@ class PlyTextLines {
   static bool isLineEnd(char c) { return c == '\r' || c == '\n' || c == '\f' || c == '\0'; }
   /// Whether buffer()[i] is still what the header left: its content is not known here.
   bool fromHeader(size_t i) const { return i < fromHeader_.size() && fromHeader_[i]; }
+  /// Whether a line was read at all.
+  bool anyLine() const { return anyLine_; }
 
  private:
   void grow() {
@@ -652,6 +662,7 @@ class PlyTextLines {
   size_t lineLength_ = 0;
   std::string buffer_;
   std::vector<bool> fromHeader_;
+  bool anyLine_ = false;
 };
 
 // Assimp 5.2 sizes every list by the count it reads before reading the list
@@ -685,7 +696,12 @@ void preflightPlyBody(std::istream& in, const std::string& name, std::uintmax_t 
     PlyTextLines lines(in, headerLeftover);
     for (const PlyElement& element : elements)
       for (std::uint32_t k = 0; k < element.count; ++k) {
-        if (!lines.next()) return;
+        // At the end of the text assimp 5.2's getNextLine fails and leaves its buffer as it
+        // was: every instance still to come parses the last line again. A face count of 31
+        // digits in a 326-byte file's last line, read for each face, made it take 3.5 GB
+        // (tests/regressions/mesh/ply_last_line_read_again_for_each_face_oom, found by the
+        // mesh fuzzer). Each later instance of an element parses alike, so one is walked.
+        const bool ended = !lines.next();
         if (!element.parsedAsText) continue;
         const std::string& b = lines.buffer();
         size_t p = 0;
@@ -696,6 +712,11 @@ void preflightPlyBody(std::istream& in, const std::string& name, std::uintmax_t 
         // ply_short_line_reads_the_header_leftover_oom, found by the mesh fuzzer).
         bool parsing = false;
         auto at = [&](size_t i) {
+          if (parsing && lines.fromHeader(i) && !lines.anyLine())
+            preflightError(name, "the file ends before the line of " + printable(element.name) +
+                                     " " + std::to_string(k) +
+                                     ": assimp 5.2 would read it from what the header left in "
+                                     "its buffer");
           if (parsing && lines.fromHeader(i))
             preflightError(name, printable(element.name) + " " + std::to_string(k) +
                                      " (the line at byte " +
@@ -830,6 +851,7 @@ void preflightPlyBody(std::istream& in, const std::string& name, std::uintmax_t 
           parsing = false;
           while (at(p) == ' ' || at(p) == '\t' || at(p) == '\r' || at(p) == '\n') ++p;
         }
+        if (ended) break;  // the element's other instances: the same line, the same walk
       }
     return;
   }
@@ -905,7 +927,29 @@ void preflightPly(std::istream& in, const std::string& name, std::uintmax_t size
   size_t longestLine = 0;  // what the header can leave in assimp's line buffer
   std::vector<PlyElement> elements;
   bool inElement = false;  // property lines still belong to the last element
-  for (int lines = 0; lines < 10000 && std::getline(in, line); ++lines) {
+  // Header lines as assimp 5.2's getNextLine splits them (PlyTextLines): at '\r', '\n', '\f'
+  // or '\0', that one character consumed; a line that starts at one first skips through the
+  // next '\n'. Split at '\n' only, "property float32 x \0\x02\0..." hid that assimp ends
+  // the element at the "\x02" line, and the next property line was counted in
+  // (tests/regressions/mesh/ply_property_line_split_at_a_nul_oom, found by the mesh fuzzer).
+  bool unterminated = false;  // the last line read ran to the end of the file
+  auto nextLine = [&](std::string& out) {
+    auto isEnd = [](int c) { return c == '\r' || c == '\n' || c == '\f' || c == '\0'; };
+    int c = in.peek();
+    if (c == std::char_traits<char>::eof()) return false;
+    if (isEnd(c)) {
+      while ((c = in.get()) != std::char_traits<char>::eof() && c != '\n') {
+      }
+      if (in.peek() == std::char_traits<char>::eof()) return false;
+    }
+    out.clear();
+    while ((c = in.peek()) != std::char_traits<char>::eof() && !isEnd(c))
+      out.push_back(static_cast<char>(in.get()));
+    unterminated = c == std::char_traits<char>::eof();
+    if (!unterminated) (void)in.get();
+    return true;
+  };
+  for (int lines = 0; lines < 10000 && nextLine(line); ++lines) {
     longestLine = std::max(longestLine, line.size() + 1);
     std::istringstream words(line);
     std::string keyword;
@@ -924,7 +968,7 @@ void preflightPly(std::istream& in, const std::string& name, std::uintmax_t size
       // buffer just after it, the header never ends for assimp: it reads past the end of
       // the file forever (tests/data/io/ply_end_header_at_end_of_file_hangs.ply, found by
       // the mesh fuzzer). No element can have data after it, so it is refused always.
-      if (in.eof() && line.find_first_of(std::string("\r\f\0", 3)) == std::string::npos)
+      if (unterminated)
         preflightError(name, "the file ends at its end_header line: no data follows it");
       break;
     }
@@ -1017,8 +1061,7 @@ void preflightPly(std::istream& in, const std::string& name, std::uintmax_t size
     first = &element.name;
   }
   // The body starts after the end_header line's first line-end character, as assimp reads
-  // it ("\r\n" leaves the "\n" in the body).
-  if (!line.empty() && line.back() == '\r') in.seekg(-1, std::ios::cur);
+  // it ("\r\n" leaves the "\n" in the body): where nextLine stopped.
   preflightPlyBody(in, name, size, elements, ascii, bigEndian, longestLine);
 }
 
