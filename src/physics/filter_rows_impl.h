@@ -88,13 +88,21 @@ struct Coefficients {
   }
 };
 
+// (A u)_i for an N x N CSR matrix A and N x 3 points u (stepper.cpp's other schemes use it
+// too).
+template <class P>
+inline P csrRowProduct(const std::int32_t* outer, const std::int32_t* inner, const double* value,
+                       const double* u, std::int32_t i) {
+  P sum;
+  for (std::int32_t p = outer[i]; p < outer[i + 1]; ++p)
+    sum += value[p] * P::load(u + 3 * static_cast<std::size_t>(inner[p]));
+  return sum;
+}
+
 // (Omega^2 u)_i.
 template <class P>
 inline P omegaProduct(const Inputs& in, const double* u, std::int32_t i) {
-  P w;
-  for (std::int32_t p = in.outer[i]; p < in.outer[i + 1]; ++p)
-    w += in.value[p] * P::load(u + 3 * static_cast<std::size_t>(in.inner[p]));
-  return w;
+  return csrRowProduct<P>(in.outer, in.inner, in.value, u, i);
 }
 
 // (W u)_i = (Omega^2 u)_i - (Omega^2 B)_i c - B_i d.

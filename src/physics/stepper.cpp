@@ -85,18 +85,10 @@ inline void storePoint(double* p, PackedPoint v) {
   v.store(p);
 }
 
-// (A u)_i for the N x N CSR matrix A and N x 3 points u.
-inline PackedPoint packedRowProduct(const Index* outer, const Index* inner, const double* value,
-                                    const double* u, Index i) {
-  PackedPoint sum;
-  for (Index p = outer[i]; p < outer[i + 1]; ++p)
-    sum += value[p] * loadPoint(u + 3 * static_cast<size_t>(inner[p]));
-  return sum;
-}
-
-// The same, written to out[0..2].
+// (A u)_i for the N x N CSR matrix A and N x 3 points u, written to out[0..2].
 inline void rowProduct(const SparseRowMatrix& a, const double* x, Index i, double out[3]) {
-  storePoint(out, packedRowProduct(a.outerIndexPtr(), a.innerIndexPtr(), a.valuePtr(), x, i));
+  storePoint(out, filter_rows::csrRowProduct<PackedPoint>(a.outerIndexPtr(), a.innerIndexPtr(),
+                                                          a.valuePtr(), x, i));
 }
 
 // The drift filter psi(x) = phi(x) q(x), phi = 1 - x/12, with q a cubic fit of
