@@ -169,6 +169,32 @@ TEST_F(Cli, TheDefaultFiltersTheDriftOnBracedModelsAndNoDriftFilterTurnsItOff) {
   }
 }
 
+TEST_F(Cli, FastMotionSplitsStepsAndSubstepStrainZeroKeepsOneStepAndRunsAway) {
+  // Torus-II at 0.95 T_max from random velocities of 1 m/s: edges would change length by
+  // about 0.7 of their rest length in one step. Split (the default), the energy keeps; in
+  // one step per cycle (--substep-strain 0, the paper's fixed period) it runs away and the
+  // guard stops the run with exit 3.
+  const std::string fast =
+      "simulate builtin:torus:40:40 --mass 0.01 --stiffness 9.5 "
+      "--dt-ratio 0.95 --perturb 1 --steps 2000 --json";
+  const Result split = run(fast);
+  ASSERT_EQ(split.status, 0) << split.err;
+  const auto j = nlohmann::json::parse(split.out);
+  EXPECT_GT(j["split_steps"].get<long>(), 1000);
+  EXPECT_GE(j["substeps_max"].get<int>(), 4);
+  EXPECT_LT(std::abs(j["energy_drift"].get<double>()), 0.01);
+  const Result whole = run(fast + " --substep-strain 0");
+  EXPECT_EQ(whole.status, 3) << whole.err;
+  EXPECT_NE(whole.err.find("the energy ran away"), std::string::npos) << whole.err;
+  // Slow motion is never split.
+  const auto slow = nlohmann::json::parse(run("simulate builtin:torus:40:40 --perturb 0.01 "
+                                              "--steps 200 --json")
+                                              .out);
+  EXPECT_EQ(slow["split_steps"].get<long>(), 0);
+  EXPECT_EQ(slow["substeps_max"].get<int>(), 1);
+  expectOneLineError(run("simulate builtin:grid --substep-strain -0.5"), 2, "--substep-strain");
+}
+
 TEST_F(Cli, AStepAboveTheStableLimitIsRefusedWithTheLimit) {
   const Result r = run("simulate builtin:dodecahedron --dt-ratio 1.2");
   expectOneLineError(r, 2, "stable limit");

@@ -131,6 +131,8 @@ void Window::simulationPanel(const Snapshot& s) {
   if (s.period > s.stableLimit)
     ImGui::TextColored(ImVec4(0.8f, 0.1f, 0.1f, 1), "T is above the stable limit %s",
                        seconds(s.stableLimit).c_str());
+  if (s.substeps > 1)
+    ImGui::Text("fast motion: each cycle taken in %d steps of T / %d", s.substeps, s.substeps);
 
   ImGui::SliderFloat("damping", &damping_, 0.0f, 1.0f, "%.4f kg/s", ImGuiSliderFlags_Logarithmic);
   help("rho of equation 1 on every vertex (a global edit: Ctrl+Z undoes it).");

@@ -540,6 +540,7 @@ void Session::fill(Snapshot& out, Property scalarProperty) {
   out.period = sim_->period();
   out.tMax = tMax_;
   out.stableLimit = stableLimit_;
+  out.substeps = sim_->substeps();
   out.gravity = model.properties.gravity;
   out.stiffnessCap = model.properties.stiffnessCap;
   out.meanDamping = model.properties.damping.size() > 0 ? model.properties.damping.mean() : 0.0;

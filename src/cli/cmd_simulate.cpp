@@ -63,12 +63,16 @@ int runSimulate(const SimulateOptions& options) {
   Diagnostics last = start;
   const auto wallStart = std::chrono::steady_clock::now();
   GuardedRun run(sim, edits);
+  long splitCycles = 0;
+  int mostSubsteps = 1;
   for (long k = 1; k <= steps; ++k) {
     if (!run.step(k)) {
       diverged = true;
       divergedAt = k;
       break;
     }
+    if (sim.substeps() > 1) ++splitCycles;
+    mostSubsteps = std::max(mostSubsteps, sim.substeps());
     const Diagnostics& d = run.diagnostics();
     last = d;
     if (wantCsv) row(k, d);
@@ -107,7 +111,9 @@ int runSimulate(const SimulateOptions& options) {
               << "  \"energy_end\": " << jsonNumber(last.total()) << ",\n"
               << "  \"energy_drift\": " << jsonNumber(energyDrift) << ",\n"
               << "  \"momentum_drift\": " << jsonNumber(momentumDrift) << ",\n"
-              << "  \"angular_momentum_drift\": " << jsonNumber(angularDrift) << ",\n";
+              << "  \"angular_momentum_drift\": " << jsonNumber(angularDrift) << ",\n"
+              << "  \"split_steps\": " << splitCycles << ",\n"
+              << "  \"substeps_max\": " << mostSubsteps << ",\n";
     if (edits.schedule.size() || options.verifyMatrices)
       std::cout << "  \"edits_applied\": " << edits.applied << ",\n";
     if (options.verifyMatrices)
@@ -125,10 +131,13 @@ int runSimulate(const SimulateOptions& options) {
     std::cout << "scheme " << schemeName(resolved.settings.scheme) << ", dt "
               << resolved.settings.period << " s (" << resolved.settings.period / resolved.tMax
               << " T_max), " << steps << " steps\n"
-              << "energy " << start.total() << " -> " << last.total() << " (drift "
-              << energyDrift << "), momentum drift " << momentumDrift
-              << ", angular momentum drift " << angularDrift << "\n"
-              << "wall " << wall << " s\n";
+              << "energy " << start.total() << " -> " << last.total() << " (drift " << energyDrift
+              << "), momentum drift " << momentumDrift << ", angular momentum drift "
+              << angularDrift << "\n";
+    if (splitCycles > 0)
+      std::cout << splitCycles << " steps split for fast motion, into up to " << mostSubsteps
+                << " substeps\n";
+    std::cout << "wall " << wall << " s\n";
     if (edits.schedule.size() || options.verifyMatrices) {
       std::cout << "edits applied " << edits.applied;
       if (options.verifyMatrices)

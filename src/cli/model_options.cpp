@@ -99,6 +99,10 @@ void RunOptions::addTo(CLI::App* app) {
   app->add_flag("--drift-filter,!--no-drift-filter", driftFilter,
                 "default scheme on braced models: filter the drift too (on unless "
                 "--no-drift-filter; docs/solver.md, section 6)");
+  app->add_option("--substep-strain", substepStrain,
+                  "default scheme: split a cycle into 2, 4, ... steps when an edge would change "
+                  "its length by more than this fraction of its rest length in one (default "
+                  "0.2; 0: one step per cycle, the paper's fixed period)");
   app->add_flag("--json", json, "a JSON summary on standard output");
 }
 
@@ -206,6 +210,12 @@ RunOptions::Resolved RunOptions::resolve(const LoadedModel& loaded) const {
   }
   r.settings.period = period;
   r.settings.stepper.driftFilter = driftFilter;
+  if (substepStrain) {
+    if (!(*substepStrain >= 0.0) || !std::isfinite(*substepStrain))
+      throw InvalidInputError("--substep-strain " + jsonNumber(*substepStrain) +
+                              ": must be 0 (one step per cycle) or a positive fraction");
+    r.settings.substepStrain = *substepStrain;
+  }
   if (steps) {
     r.steps = *steps;
   } else if (time) {

@@ -46,6 +46,7 @@ struct RunOptions {
   std::vector<std::string> pins, pinNormals;
   bool allowUnstable = false;
   bool driftFilter = true;
+  std::optional<double> substepStrain;
   bool json = false;
 
   void addTo(CLI::App* app);

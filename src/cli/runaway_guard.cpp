@@ -9,21 +9,13 @@
 namespace zsculpt::cli {
 
 RunawayGuard::RunawayGuard(const Simulation& sim)
-    : start_(sim.diagnostics().total()), before_(sim.state().position), checkpoint_(sim.state()) {}
-
-void RunawayGuard::beforeStep(const Simulation& sim) { before_ = sim.state().position; }
+    : start_(sim.diagnostics().total()), checkpoint_(sim.state()) {}
 
 bool RunawayGuard::afterStep(const Simulation& sim, long k, const Diagnostics& diagnostics) {
   const double energy = diagnostics.total();
-  const Points& after = sim.state().position;
-  // Work of the loads and of the constraints' virtual forces over this cycle (each is held
-  // over the cycle), counted in absolute value: the scale of energy moved in and out.
-  const double loads = (sim.externalForces().array() * (after - before_).array()).sum();
-  const double constraints =
-      sim.constraints().empty()
-          ? 0.0
-          : (sim.constraintForces().array() * (after - before_).array()).sum();
-  inflow_ += std::abs(loads) + std::abs(constraints);
+  // Work of the loads and of the constraints over this cycle, counted in absolute value: the
+  // scale of energy moved in and out.
+  inflow_ += std::abs(sim.loadWork()) + std::abs(sim.constraintWork());
   const double bound =
       start_ + kFactor * (std::abs(start_) + inflow_) + maxKinetic_ + 1e-12;
   maxKinetic_ = std::max(maxKinetic_, diagnostics.kinetic);
@@ -47,7 +39,6 @@ bool GuardedRun::step(long k) {
   try {
     edits_.beforeStep(sim_);
     guard_.addEnergy(edits_.takeEnergyChange());
-    guard_.beforeStep(sim_);
     sim_.step();  // rolls back and throws on a non-finite state
   } catch (const DivergenceError&) {
     why_ = "the state became non-finite";

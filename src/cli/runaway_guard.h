@@ -25,8 +25,6 @@ class RunawayGuard {
   static constexpr double kFactor = 10.0;
 
   explicit RunawayGuard(const Simulation& sim);
-  /// Call right before each step (remembers the positions, allocation-free after the first).
-  void beforeStep(const Simulation& sim);
   /// Call right after step `k` with its diagnostics. Returns false when the energy ran
   /// away (see reason()).
   bool afterStep(const Simulation& sim, long k, const Diagnostics& diagnostics);
@@ -41,7 +39,6 @@ class RunawayGuard {
   double start_ = 0.0;
   double inflow_ = 0.0;
   double maxKinetic_ = 0.0;
-  Points before_;
   State checkpoint_;
   long checkpointStep_ = 0;
   std::string reason_;

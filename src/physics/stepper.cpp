@@ -6,6 +6,7 @@
 #include <cmath>
 #include <cstdint>
 #include <limits>
+#include <string>
 #include <type_traits>
 #include <unsupported/Eigen/MatrixFunctions>
 
@@ -238,6 +239,18 @@ void Stepper::propertiesChanged(std::span<const Index> vertices) {
   if (!vertices.empty()) refreshDamping(vertices);
   cacheValid_ = false;
   kickValid_ = false;
+}
+
+void Stepper::setPeriod(double period) {
+  if (!(period > 0.0) || !std::isfinite(period))
+    throw InvalidInputError("time step " + std::to_string(period) + " must be positive");
+  if (period == period_) return;
+  if (scheme_ != Scheme::Default)
+    throw InvalidInputError(std::string("the ") + std::string(schemeName(scheme_)) +
+                            " scheme's period is fixed when it is set up");
+  period_ = period;
+  refreshDamping({});
+  kickValid_ = false;  // the cached kick is (T/2) Phi a for the old period
 }
 
 void Stepper::rebuild() {

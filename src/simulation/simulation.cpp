@@ -1,6 +1,7 @@
 #include "zsculpt/simulation/simulation.h"
 
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <string>
 
@@ -17,6 +18,7 @@ Simulation::Simulation(Model model, const SimulationSettings& settings)
   state_ = State::atRest(model_.mesh);
   lastGood_ = state_;
   stepper_ = std::make_unique<Stepper>(model_, settings.scheme, settings.period, settings.stepper);
+  cyclePeriod_ = stepper_->period();
   const Index n = model_.mesh.numVertices();
   for (Points* p : {&external_, &constraintForce_, &baseForce_, &totalForce_, &loadForce_,
                     &deformation_, &lastGoodDeformation_})
@@ -236,8 +238,44 @@ std::vector<std::string> Simulation::takeWarnings() {
 
 // ---- the cycle ------------------------------------------------------------------------------
 
+void Simulation::chooseSubsteps() {
+  const double limit = settings_.substepStrain;
+  if (!(limit > 0.0) || stepper_->scheme() != Scheme::Default) return;
+  const std::vector<std::array<Index, 2>>& edges = model_.mesh.edges();
+  const VectorX& rest = model_.properties.restLength;
+  const Points& v = state_.velocity;
+  const Index m = static_cast<Index>(edges.size());
+  // The largest (|v_a - v_b| / lambda_ab)^2. Springs of rest length 0 (equation 1's linear
+  // ones) are left out: their stiffness does not depend on the amplitude.
+  double rate2 = 0.0;
+#pragma omp parallel for schedule(static) reduction(max : rate2) if (m > 4 * kParallelMinVertices)
+  for (Index e = 0; e < m; ++e) {
+    const double lambda = rest[e];
+    if (!(lambda > 0.0)) continue;
+    const auto [a, b] = edges[static_cast<size_t>(e)];
+    const double dx = v(a, 0) - v(b, 0), dy = v(a, 1) - v(b, 1), dz = v(a, 2) - v(b, 2);
+    rate2 = std::max(rate2, (dx * dx + dy * dy + dz * dz) / (lambda * lambda));
+  }
+  const double strain = std::sqrt(rate2) * cyclePeriod_;  // over a whole cycle
+  auto needed = [strain](double bound) {
+    int n = 1;
+    while (n < kMaxSubsteps && strain > bound * n) n *= 2;
+    return n;
+  };
+  int n = substeps_;
+  if (const int up = needed(limit); up > n)
+    n = up;
+  else if (const int down = needed(0.5 * limit); down < n)
+    n = down;
+  if (n == substeps_) return;
+  substeps_ = n;
+  // The division is exact for powers of two, so n = 1 gives T back bit for bit.
+  stepper_->setPeriod(cyclePeriod_ / n);
+  responseValid_ = false;  // the constraints' response is the step's
+}
+
 void Simulation::step() {
-  gatherLoads(state_.time, state_.position, external_);
+  chooseSubsteps();
   lastGood_.position = state_.position;
   lastGood_.velocity = state_.velocity;
   lastGood_.time = state_.time;
@@ -246,7 +284,41 @@ void Simulation::step() {
     lastGoodDeformation_ = deformation_;
   }
   const ImpulseLedger ledgerBefore = ledger_;
-  auto restore = [&]() {
+  constraintWork_ = 0.0;
+  loadWork_ = 0.0;
+  const bool loaded = !forces_.empty() || !torques_.empty();
+  // Each step of a split cycle is a cycle of its own (loads, constraints, rigid coupling) at
+  // T / n. Position constraints move their targets from where their vertices start to where
+  // they are asked to be in n equal parts, so that a drag is as smooth as in one cycle.
+  const std::span<const Constraint> items = constraints_.constraints();
+  if (substeps_ > 1) {
+    targetEnd_.resize(items.size());
+    targetStart_.resize(items.size());
+    for (size_t c = 0; c < items.size(); ++c) {
+      targetEnd_[c] = items[c].value;
+      targetStart_[c] = items[c].kind == ConstraintKind::Position
+                            ? Vec3(state_.position.row(items[c].vertex).transpose())
+                            : items[c].value;
+    }
+  }
+  auto setTargets = [&](double share) {
+    for (size_t c = 0; c < items.size(); ++c)
+      if (items[c].kind == ConstraintKind::Position)
+        constraints_.setTarget(
+            items[c].id, share >= 1.0
+                             ? targetEnd_[c]
+                             : Vec3(targetStart_[c] + share * (targetEnd_[c] - targetStart_[c])));
+  };
+  try {
+    for (int k = 1; k <= substeps_; ++k) {
+      if (substeps_ > 1) {
+        setTargets(static_cast<double>(k) / substeps_);
+        if (loaded) subStart_ = state_.position;
+      }
+      subCycle(substeps_ > 1 && loaded ? subStart_ : lastGood_.position);
+    }
+  } catch (const DivergenceError&) {
+    if (substeps_ > 1) setTargets(1.0);
     state_.position = lastGood_.position;
     state_.velocity = lastGood_.velocity;
     state_.time = lastGood_.time;
@@ -257,29 +329,30 @@ void Simulation::step() {
     ledger_ = ledgerBefore;
     baseForceValid_ = false;
     stepper_->invalidate();
-  };
-  try {
-    if (!rigidActive_ && constraints_.empty()) {
-      // The plain elastic cycle: nothing is split, nothing is constrained.
-      stepper_->step(state_, external_);
-      constraintForce_.setZero();
-      constraintWork_ = 0.0;
-      baseForceValid_ = false;
-      addToLedger(Vec3::Zero(), velocityDelta_);
-    } else {
-      coupledStep();
-    }
-  } catch (const DivergenceError&) {
-    restore();
     throw;
   }
-  if (!state_.position.allFinite() || !state_.velocity.allFinite() ||
-      !rigidMomentum_.linear.allFinite() || !rigidMomentum_.angular.allFinite()) {
-    const double t = state_.time;
-    restore();
-    throw DivergenceError("the simulation diverged at t = " + std::to_string(t) +
-                          " s (the state became non-finite)");
+  // n additions of T / n need not add up to T.
+  if (substeps_ > 1) state_.time = lastGood_.time + cyclePeriod_;
+}
+
+void Simulation::subCycle(const Points& start) {
+  gatherLoads(state_.time, state_.position, external_);
+  if (!rigidActive_ && constraints_.empty()) {
+    // The plain elastic cycle: nothing is split, nothing is constrained.
+    stepper_->step(state_, external_);
+    constraintForce_.setZero();
+    baseForceValid_ = false;
+    addToLedger(Vec3::Zero(), velocityDelta_);
+  } else {
+    coupledStep();
   }
+  if (!state_.position.allFinite() || !state_.velocity.allFinite() ||
+      !rigidMomentum_.linear.allFinite() || !rigidMomentum_.angular.allFinite())
+    throw DivergenceError("the simulation diverged at t = " + std::to_string(state_.time) +
+                          " s (the state became non-finite)");
+  // The loads are held over the step: their work is F . dx exactly.
+  if (!forces_.empty() || !torques_.empty())
+    loadWork_ += (external_.array() * (state_.position - start).array()).sum();
 }
 
 void Simulation::computeBaseForce(const Points& position) {
@@ -292,7 +365,7 @@ void Simulation::computeBaseForce(const Points& position) {
 }
 
 void Simulation::runTrial(bool constrained, bool first) {
-  const double t = period();
+  const double t = stepper_->period();
   trial_.position = elasticStart_.position;
   trial_.velocity = elasticStart_.velocity;
   trial_.time = elasticStart_.time;
@@ -344,7 +417,7 @@ void Simulation::runTrial(bool constrained, bool first) {
 }
 
 void Simulation::finishRigid() {
-  const double t = period();
+  const double t = stepper_->period();
   const VectorX& mass = model_.properties.mass;
   end_ = massProperties(mass, trial_.position);
   // Second half kick with the forces at the end of the drift (velocity Verlet); they are
@@ -411,7 +484,7 @@ void Simulation::finishRigid() {
 }
 
 void Simulation::coupledStep() {
-  const double t = period();
+  const double t = stepper_->period();
   const VectorX& mass = model_.properties.mass;
   const bool constrained = !constraints_.empty();
   if (constrained && constraints_.revision() != constraintRevision_) {
@@ -446,7 +519,6 @@ void Simulation::coupledStep() {
                       startElasticTorque_);
   }
   constraintForce_.setZero();
-  constraintWork_ = 0.0;
   report_ = ConstraintReport{};
   if (constrained) {
     const auto support = solver_.support();
@@ -530,7 +602,7 @@ void Simulation::coupledStep() {
 }
 
 void Simulation::addToLedger(const Vec3& centreHint, const Points& velocityDelta) {
-  const double t = period();
+  const double t = stepper_->period();
   const VectorX& mass = model_.properties.mass;
   const Points& start = lastGood_.position;
   Vec3 centre = centreHint;

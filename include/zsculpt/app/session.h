@@ -84,6 +84,7 @@ struct Snapshot {
   double period = 0.0;
   double tMax = 0.0;          ///< equation 5 for the current properties
   double stableLimit = 0.0;   ///< the scheme's stable period (Gerschgorin bound)
+  int substeps = 1;           ///< steps in the last cycle (split when the motion is fast)
   Vec3 gravity = Vec3::Zero();
   double stiffnessCap = 0.0;
   double meanDamping = 0.0;

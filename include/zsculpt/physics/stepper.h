@@ -104,6 +104,13 @@ class Stepper {
   /// reaches the elastic stepper (section 4.3, sigma_i); empty means 1.
   void step(State& state, const Points& external, std::span<const double> elasticShare = {});
 
+  /// Default scheme: step with period `period` from now on (Simulation splits a cycle into
+  /// steps of T / n when the motion is fast: SimulationSettings::substepStrain). O(N) (the
+  /// damping factors), no allocation. Throws InvalidInputError for other schemes (the paper
+  /// scheme's matrices, the exact propagators and the implicit system are made for one
+  /// period) and for a period that is not positive and finite.
+  void setPeriod(double period);
+
   /// The properties of these vertices (or of their edges and angles) changed: update the
   /// matrices' rows locally and drop cached forces.
   void propertiesChanged(std::span<const Index> vertices);

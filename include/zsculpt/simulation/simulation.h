@@ -55,6 +55,9 @@ enum class RigidFrame {
   World,
 };
 
+/// The most steps SimulationSettings::substepStrain splits a cycle into.
+inline constexpr int kMaxSubsteps = 64;
+
 struct SimulationSettings {
   Scheme scheme = Scheme::Default;
   /// The sampling period T (seconds).
@@ -67,6 +70,14 @@ struct SimulationSettings {
   double positionTolerance = 1e-12;
   /// A constrained normal must end within this angle (rad) of its target.
   double normalTolerance = 1e-10;
+  /// Default scheme: the most an edge's length may change in one step, relative to its rest
+  /// length, estimated at each cycle's start from the relative velocity of its ends:
+  /// |v_a - v_b| T / lambda_ab. A faster cycle is split into 2, 4, ... steps of T / n
+  /// (Stepper::setPeriod), and joined again once fewer steps would each change an edge by
+  /// at most half this. Equation 5's T_max bounds the linear motion only; beyond
+  /// this strain the springs' nonlinearity lets an undamped model heat up and run away
+  /// (docs/reliability.md, "Soak"). 0: never split (the paper's fixed period).
+  double substepStrain = 0.2;
 };
 
 /// Impulses that entered the model since the start (or the last setState), so that momentum
@@ -89,7 +100,10 @@ class Simulation {
   [[nodiscard]] const State& state() const { return state_; }
   [[nodiscard]] double time() const { return state_.time; }
   [[nodiscard]] const Stepper& stepper() const { return *stepper_; }
-  [[nodiscard]] double period() const { return stepper_->period(); }
+  /// The sampling period T of one cycle (step()).
+  [[nodiscard]] double period() const { return cyclePeriod_; }
+  /// Steps per cycle at present (SimulationSettings::substepStrain): 1, 2, 4, ...
+  [[nodiscard]] int substeps() const { return substeps_; }
   [[nodiscard]] const SimulationSettings& settings() const { return settings_; }
 
   /// Replaces the state (same vertex count, finite). Throws InvalidInputError. With rigid
@@ -127,11 +141,15 @@ class Simulation {
 
   /// Energy and momentum of the current state.
   [[nodiscard]] Diagnostics diagnostics() const { return measure(model_, state_); }
-  /// External forces applied during the last step (N x 3, torques as virtual forces).
+  /// External forces applied during the last step of the last cycle (N x 3, torques as
+  /// virtual forces).
   [[nodiscard]] const Points& externalForces() const { return external_; }
-  /// Virtual forces of the constraints during the last step (N x 3).
+  /// Work the loads (forces and torques) did during the last cycle (J): each step's forces
+  /// times the displacement of their vertices over it.
+  [[nodiscard]] double loadWork() const { return loadWork_; }
+  /// Virtual forces of the constraints during the last step of the last cycle (N x 3).
   [[nodiscard]] const Points& constraintForces() const { return constraintForce_; }
-  /// Work the constraints did during the last step (J): their virtual forces times the
+  /// Work the constraints did during the last cycle (J): their virtual forces times the
   /// constrained vertices' displacements, plus the kinetic energy of the velocity correction.
   [[nodiscard]] double constraintWork() const { return constraintWork_; }
   [[nodiscard]] const ImpulseLedger& impulses() const { return ledger_; }
@@ -153,6 +171,11 @@ class Simulation {
 
  private:
   void gatherLoads(double t, const Points& position, Points& out);
+  // SimulationSettings::substepStrain: splits or joins the coming cycle's steps.
+  void chooseSubsteps();
+  // One step of the cycle: loads, the elastic (or coupled) step, the constraints. Throws
+  // DivergenceError on a non-finite state. `start` holds the positions at its start.
+  void subCycle(const Points& start);
   void updateRigidity();
   void splitVelocity();
   void coupledStep();
@@ -166,6 +189,11 @@ class Simulation {
   State state_;
   State lastGood_;
   std::unique_ptr<Stepper> stepper_;
+  double cyclePeriod_ = 0.0;
+  int substeps_ = 1;  // the stepper's period is cyclePeriod_ / substeps_
+  double loadWork_ = 0.0;
+  std::vector<Vec3> targetStart_, targetEnd_;  // position targets over a split cycle
+  Points subStart_;                            // positions at a split cycle's step's start
   std::vector<TimedLoad> forces_;
   std::vector<TimedLoad> torques_;
   Points external_;
