@@ -246,9 +246,12 @@ void Simulation::chooseSubsteps() {
   const Points& v = state_.velocity;
   const Index m = static_cast<Index>(edges.size());
   // The largest (|v_a - v_b| / lambda_ab)^2. Springs of rest length 0 (equation 1's linear
-  // ones) are left out: their stiffness does not depend on the amplitude.
+  // ones) are left out: their stiffness does not depend on the amplitude. As many threads
+  // as the step found worth it (a second thread only helps when a core is free).
   double rate2 = 0.0;
-#pragma omp parallel for schedule(static) reduction(max : rate2) if (m > 4 * kParallelMinVertices)
+  const int threads = stepper_->threads();
+#pragma omp parallel for schedule(static) reduction(max \
+                                                    : rate2) num_threads(threads) if (threads > 1)
   for (Index e = 0; e < m; ++e) {
     const double lambda = rest[e];
     if (!(lambda > 0.0)) continue;
