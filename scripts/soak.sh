@@ -9,8 +9,10 @@
 #
 # Environment: SOAK_CYCLES (default 200000), SOAK_SEED (default 1), SOAK_RATIO (T / T_max,
 # default 0.95), SOAK_DAMPING (kg/s per vertex, default 0), SOAK_KINDS (a comma list of
-# force, torque, pin, drag, stiffness, mass, rest-length; default all), SOAK_VALGRIND_CYCLES
-# (default 2000; 0 skips valgrind), ZSCULPT_BUILD_DIR (default build-rel), BUILD_JOBS (2).
+# force, torque, pin, drag, stiffness, mass, rest-length; default all), SOAK_SUBSTEP_STRAIN
+# (SimulationSettings::substepStrain, default 0.2; 0 keeps one step per cycle),
+# SOAK_VALGRIND_CYCLES (default 2000; 0 skips valgrind), ZSCULPT_BUILD_DIR (default
+# build-rel), BUILD_JOBS (2).
 set -euo pipefail
 root="$(cd "$(dirname "$0")/.." && pwd)"
 build="${ZSCULPT_BUILD_DIR:-$root/build-rel}"
@@ -19,6 +21,7 @@ seed="${SOAK_SEED:-1}"
 ratio="${SOAK_RATIO:-0.95}"
 export ZSCULPT_SOAK_DAMPING="${SOAK_DAMPING:-0}"
 [ -n "${SOAK_KINDS:-}" ] && export ZSCULPT_SOAK_KINDS="$SOAK_KINDS"
+[ -n "${SOAK_SUBSTEP_STRAIN:-}" ] && export ZSCULPT_SOAK_SUBSTEP_STRAIN="$SOAK_SUBSTEP_STRAIN"
 vg_cycles="${SOAK_VALGRIND_CYCLES:-2000}"
 
 [ -f "$build/CMakeCache.txt" ] || cmake -S "$root" -B "$build" -DZSCULPT_BUILD_BENCHMARKS=OFF >/dev/null

@@ -211,9 +211,12 @@ RunOptions::Resolved RunOptions::resolve(const LoadedModel& loaded) const {
   r.settings.period = period;
   r.settings.stepper.driftFilter = driftFilter;
   if (substepStrain) {
-    if (!(*substepStrain >= 0.0) || !std::isfinite(*substepStrain))
-      throw InvalidInputError("--substep-strain " + jsonNumber(*substepStrain) +
-                              ": must be 0 (one step per cycle) or a positive fraction");
+    if (!(*substepStrain >= 0.0) || !std::isfinite(*substepStrain)) {
+      std::ostringstream msg;
+      msg << "--substep-strain " << *substepStrain
+          << ": must be 0 (one step per cycle) or a positive fraction";
+      throw InvalidInputError(msg.str());
+    }
     r.settings.substepStrain = *substepStrain;
   }
   if (steps) {
