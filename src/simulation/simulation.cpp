@@ -250,8 +250,9 @@ void Simulation::chooseSubsteps() {
   // as the step found worth it (a second thread only helps when a core is free).
   double rate2 = 0.0;
   const int threads = stepper_->threads();
-#pragma omp parallel for schedule(static) reduction(max \
-                                                    : rate2) num_threads(threads) if (threads > 1)
+  // clang-format off
+#pragma omp parallel for reduction(max : rate2) num_threads(threads) if (threads > 1)
+  // clang-format on
   for (Index e = 0; e < m; ++e) {
     const double lambda = rest[e];
     if (!(lambda > 0.0)) continue;
