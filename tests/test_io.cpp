@@ -1,6 +1,8 @@
 // io module: mesh import/export through assimp, atomic writes, state files, scene files.
 
 #include <gtest/gtest.h>
+
+#include <csignal>
 #include <unistd.h>
 
 #include <chrono>
@@ -305,6 +307,13 @@ TEST(MeshImport, BadFilesGiveOneLineErrorsNamingTheFile) {
        "the list in face 0 (at byte 204) counts 4294967295 items, more than the 16 bytes left"},
       // A float whose integer part overflows 64 bits: assimp 5.2 reads it as 0 without moving
       // on, and the list count after it reads the same digits as 1661992959 items (13 GB).
+      // Assimp 5.2 closes a line loop through its first face, which it never made when every
+      // index pair was out of range (a null dereference), and reads past one of one index.
+      {data("glb_line_loop_without_a_face.glb"),
+       "mesh 0 primitive 0 is a line loop (mode 2) none of whose 36 indices has a neighbour "
+       "pair within its 24 positions"},
+      {data("glb_line_loop_of_one_index.glb"),
+       "is a line loop (mode 2) of 1 index, past which assimp 5.2 reads and writes"},
       {data("ply_float_overflowing_64_bits_then_list.ply"),
        "the list in vertex 0 (at byte 126) counts 1661992959 items, more than the 3 bytes"},
       // The fuzzer's input, where the same made 830006163 items (6.6 GB) at vertex 11. Its
@@ -432,20 +441,34 @@ TEST(Isolation, ACrashOrAHangCostsTheReadNotTheProcess) {
   EXPECT_LT(std::chrono::steady_clock::now() - start, std::chrono::seconds(30));
 }
 
-TEST(Isolation, AnAssimpCrashCostsTheReadOnly) {
-  // Found by the mesh fuzzer (eleventh session) and not yet refused by the preflight: Box
-  // With Infinites as a line loop (mode 2) over damaged indices. Assimp 5.2 dereferences
-  // null reading it (SIGSEGV in the process, in code without symbols). The read runs in a
-  // child, so the file gets one line and the caller lives on. (Sanitizer builds see the
-  // fault in the child as a report: skipped there.)
+TEST(Isolation, ASegmentationFaultCostsTheReadOnly) {
+  // What assimp 5.2 did on the fuzzer's line loop over damaged indices (before the preflight
+  // refused it: tests/regressions/mesh/glb_line_loop_with_damaged_indices_segv): a null
+  // dereference. In the child it costs the read, with one line, and the caller lives on.
+  // (Sanitizer builds see the fault in the child as a report: skipped there.)
   if (!isolationLimitsMemory()) GTEST_SKIP() << "sanitizer build: the child's fault is a report";
-  const std::string path = data("glb_line_loop_with_damaged_indices_crashes_assimp.glb");
-  const std::string error = errorOf([&] { loadMesh(path); });
-  EXPECT_NE(error.find(path + ": the importer crashed reading the file (signal 11"),
+  const std::string error = errorOf([&] {
+    runIsolated("damaged.glb", []() -> std::string {
+      std::raise(SIGSEGV);  // what the null dereference raised
+      return "read";
+    });
+  });
+  EXPECT_NE(error.find("damaged.glb: the importer crashed reading the file (signal 11"),
             std::string::npos)
       << error;
   // The caller goes on: the next file loads.
   EXPECT_EQ(loadMesh(data("box_quads.obj")).numVertices(), 8);
+}
+
+TEST(MeshImport, AGltfLineLoopIsAClosedCurve) {
+  // 24 positions on a ring, a line loop (mode 2) over indices 0..23: the loop's closing edge
+  // is there. (The preflight's line-loop rule must not refuse a sound one.)
+  const Mesh curve = loadMesh(data("glb_line_loop_closed_curve.glb"));
+  EXPECT_EQ(curve.numVertices(), 24);
+  EXPECT_EQ(curve.numEdges(), 24);
+  EXPECT_EQ(curve.numFaces(), 0);
+  EXPECT_EQ(curve.numComponents(), 1);
+  for (Index v = 0; v < curve.numVertices(); ++v) EXPECT_EQ(curve.valence(v), 2) << v;
 }
 
 TEST(Isolation, AnAllocationPastTheBudgetFailsInTheChild) {

@@ -1110,6 +1110,39 @@ void preflightObj(std::istream& in, const std::string& name) {
 // fuzzer, tests/regressions/mesh/glb_chunk_length_past_the_file_allocates_gigabytes). The
 // binary glTF container (glTF 2.0, 4.4): a 12-byte header (magic, version, total length),
 // then chunks of length, type and data. Every length must fit in the file.
+// The bytes of standard base64 text (RFC 4648; padding optional); nullopt for any other
+// character.
+std::optional<std::string> decodeBase64(std::string_view text) {
+  std::string out;
+  out.reserve(text.size() / 4 * 3 + 3);
+  std::uint32_t bits = 0;
+  int held = 0;
+  for (const char c : text) {
+    int value = -1;
+    if (c >= 'A' && c <= 'Z')
+      value = c - 'A';
+    else if (c >= 'a' && c <= 'z')
+      value = c - 'a' + 26;
+    else if (c >= '0' && c <= '9')
+      value = c - '0' + 52;
+    else if (c == '+')
+      value = 62;
+    else if (c == '/')
+      value = 63;
+    else if (c == '=')
+      break;
+    else
+      return std::nullopt;
+    bits = (bits << 6) | static_cast<std::uint32_t>(value);
+    held += 6;
+    if (held >= 8) {
+      held -= 8;
+      out += static_cast<char>((bits >> held) & 0xffu);
+    }
+  }
+  return out;
+}
+
 void preflightGlbChunks(std::string_view bytes, const std::string& name) {
   if (bytes.size() < 12)
     preflightError(name, "a binary glTF needs a 12-byte header; the file has " +
@@ -1350,6 +1383,94 @@ void preflightGltf(std::istream& in, const std::string& name, bool binary, bool 
     if (accessor == nullptr || !accessor->is_object()) return std::uint64_t{0};
     return number(*accessor, "count", 0, what);
   };
+  // Bytes [offset, offset + length) of buffer `b`: the .glb's BIN chunk, a data: URI, or a
+  // file beside the glTF. nullopt when they cannot be had (assimp then judges the file).
+  auto bufferRange = [&](std::uint64_t b, std::uint64_t offset,
+                         std::uint64_t length) -> std::optional<std::string> {
+    if (b >= buffers.size() || !buffers[b].is_object()) return std::nullopt;
+    const auto uri = buffers[b].find("uri");
+    if (uri == buffers[b].end()) {
+      if (!binary || parts.rest.size() < 8 ||
+          parts.rest.compare(4, 4, std::string("BIN\0", 4)) != 0)
+        return std::nullopt;
+      std::uint32_t declared = 0;
+      std::memcpy(&declared, parts.rest.data(), 4);
+      const std::string_view bin = std::string_view(parts.rest).substr(8, declared);
+      if (offset > bin.size() || length > bin.size() - offset) return std::nullopt;
+      return std::string(bin.substr(offset, length));
+    }
+    if (!uri->is_string()) return std::nullopt;
+    const std::string& text = uri->get_ref<const std::string&>();
+    if (text.rfind("data:", 0) == 0) {
+      const size_t comma = text.find(";base64,");
+      if (comma == std::string::npos) return std::nullopt;
+      const auto decoded = decodeBase64(std::string_view(text).substr(comma + 8));
+      if (!decoded || offset > decoded->size() || length > decoded->size() - offset)
+        return std::nullopt;
+      return decoded->substr(offset, length);
+    }
+    std::error_code ec;
+    const fs::path file = fs::path(name).parent_path() / text;
+    const std::uintmax_t size = fs::file_size(file, ec);
+    if (ec || offset > size || length > size - offset) return std::nullopt;
+    std::ifstream in(file, std::ios::binary);
+    std::string out(length, '\0');
+    in.seekg(static_cast<std::streamoff>(offset));
+    in.read(out.data(), static_cast<std::streamsize>(length));
+    if (!in || static_cast<std::uint64_t>(in.gcount()) != length) return std::nullopt;
+    return out;
+  };
+  // Assimp 5.2's glTF 2 reader makes a line loop's (mode 2) faces from consecutive index
+  // pairs, dropping those with an index past the positions, and closes the loop with
+  // faces[0].mIndices[0]. When it dropped every pair, faces[0] was never made: a null
+  // dereference (tests/regressions/mesh/glb_line_loop_with_damaged_indices_segv, found by
+  // the mesh fuzzer). With fewer than two indices it reads and writes past its arrays.
+  auto refuseFacelessLineLoop = [&](const nlohmann::json& primitive, const std::string& what) {
+    const auto indices = primitive.find("indices");
+    if (indices == primitive.end() || !indices->is_number_unsigned() ||
+        indices->get<std::uint64_t>() >= accessors.size())
+      return;
+    const nlohmann::json& acc = accessors[indices->get<size_t>()];
+    const std::string where = what + " indices";
+    const std::uint64_t count = number(acc, "count", 0, where);
+    if (count < 2)
+      preflightError(name, what + " is a line loop (mode 2) of " + std::to_string(count) +
+                               (count == 1 ? " index" : " indices") +
+                               ", past which assimp 5.2 reads and writes");
+    const auto attributes = primitive.find("attributes");
+    if (attributes == primitive.end() || !attributes->is_object() ||
+        !attributes->contains("POSITION") || !acc.contains("bufferView"))
+      return;
+    const std::uint64_t vertices =
+        accessorCount((*attributes)["POSITION"], what + " POSITION") & 0xffffffffu;
+    const std::uint64_t type = number(acc, "componentType", 0, where);
+    if (type != 5121 && type != 5123 && type != 5125) return;  // assimp's to judge
+    const std::uint64_t component = componentSize(type);
+    const std::uint64_t view = number(acc, "bufferView", 0, where);
+    if (view >= views.size()) return;
+    const std::string viewName = "buffer view " + std::to_string(view);
+    std::uint64_t stride = number(views[view], "byteStride", 0, viewName);
+    if (stride == 0) stride = component;
+    // The accessor fits its view (checked above), so this does not overflow.
+    const std::optional<std::string> bytes = bufferRange(
+        number(views[view], "buffer", buffers.size(), viewName),
+        number(views[view], "byteOffset", 0, viewName) + number(acc, "byteOffset", 0, where),
+        stride * (count - 1) + component);
+    if (!bytes) return;
+    auto index = [&](std::uint64_t i) {
+      std::uint64_t value = 0;
+      for (std::uint64_t k = component; k-- > 0;)  // little-endian
+        value = (value << 8) | static_cast<unsigned char>((*bytes)[i * stride + k]);
+      return value;
+    };
+    for (std::uint64_t i = 1; i < count; ++i)
+      if (index(i - 1) < vertices && index(i) < vertices) return;  // faces[0] is made
+    preflightError(name, what + " is a line loop (mode 2) none of whose " + std::to_string(count) +
+                             " indices has a neighbour pair within its " +
+                             std::to_string(vertices) +
+                             " positions: assimp 5.2 then closes the loop through a face it "
+                             "never made (a null dereference)");
+  };
   const auto meshesField = j.find("meshes");
   std::vector<std::pair<std::string, const nlohmann::json*>> meshes;
   if (meshesField != j.end() && meshesField->is_array())
@@ -1371,6 +1492,7 @@ void preflightGltf(std::istream& in, const std::string& name, bool binary, bool 
       const std::uint64_t mode = modeField == primitive.end() || !modeField->is_number_unsigned()
                                      ? 4
                                      : modeField->get<std::uint64_t>();
+      if (mode == 2) refuseFacelessLineLoop(primitive, what);
       // Faces: count - lost, in assimp's 32 bits.
       const std::uint64_t lost = mode == 3 ? 1 : mode == 5 || mode == 6 ? 2 : 0;
       if (lost == 0) continue;
