@@ -8,6 +8,7 @@
 #include <numbers>
 #include <vector>
 
+#include "zsculpt/core/errors.h"
 #include "zsculpt/mesh/builtin.h"
 #include "zsculpt/physics/diagnostics.h"
 #include "zsculpt/physics/forces.h"
@@ -869,6 +870,36 @@ TEST(Stepper, TheDriftFiltersLocalUpdateMatchesAFreshBuild) {
   State c = perturbed(model, 0.05, 4);
   for (int k = 0; k < 50; ++k) plain.step(c, external);
   EXPECT_GT((c.position - b.position).cwiseAbs().maxCoeff(), 1e-6);
+}
+
+TEST(Stepper, ANewPeriodStepsAsAStepperBuiltForIt) {
+  // Split cycles (Simulation) change the default scheme's period in place: the steps that
+  // follow are a stepper built for the new period, bit for bit, damping and drift filter
+  // included (both read the period per step). The other schemes keep theirs.
+  UniformProperties u;
+  u.angularStiffness = 0.2;
+  u.damping = 0.05;
+  u.gravity = Vec3(0.0, 0.0, -9.81);
+  const Model model = Model::fromMesh(makeTorus(12, 8), u);
+  const double dt = 0.9 * criticalPeriod(SystemMatrices(model));
+  Stepper changed(model, Scheme::Default, dt), built(model, Scheme::Default, dt / 4);
+  State a = perturbed(model, 0.05, 3), b = a;
+  // No load: the default scheme then keeps the end-of-step kick for the next step, a cache
+  // that must not outlive the period it was made for.
+  const Points external = Points::Zero(model.mesh.numVertices(), 3);
+  changed.step(a, external);
+  changed.setPeriod(dt / 4);
+  b = a;
+  for (int k = 0; k < 20; ++k) {
+    changed.step(a, external);
+    built.step(b, external);
+  }
+  EXPECT_TRUE(a.position == b.position);
+  EXPECT_TRUE(a.velocity == b.velocity);
+  EXPECT_EQ(changed.period(), dt / 4);
+  Stepper paper(model, Scheme::Paper, dt);
+  EXPECT_THROW(paper.setPeriod(dt / 2), InvalidInputError);
+  EXPECT_THROW(changed.setPeriod(0.0), InvalidInputError);
 }
 
 TEST(Stepper, LastTotalForceIsTheTotalForceAtTheStartOfTheStep) {
