@@ -1443,14 +1443,21 @@ void preflightGltf(std::istream& in, const std::string& name, bool binary, bool 
       return;
     const std::uint64_t vertices =
         accessorCount((*attributes)["POSITION"], what + " POSITION") & 0xffffffffu;
-    const std::uint64_t type = number(acc, "componentType", 0, where);
-    if (type != 5121 && type != 5123 && type != 5125) return;  // assimp's to judge
-    const std::uint64_t component = componentSize(type);
+    // Assimp reads an index as the first min(element size, 4) bytes of its element, whatever
+    // the accessor's types: a float VEC3 accessor named as indices gives each x's bits
+    // (tests/regressions/mesh/glb_line_loop_over_float_indices_segv).
+    const auto typeName = acc.find("type");
+    const std::uint64_t element = componentSize(number(acc, "componentType", 0, where)) *
+                                  (typeName != acc.end() && typeName->is_string()
+                                       ? componentCount(typeName->get<std::string>())
+                                       : 0);
+    if (element == 0) return;  // refused above when it names a buffer view
+    const std::uint64_t component = std::min<std::uint64_t>(element, 4);
     const std::uint64_t view = number(acc, "bufferView", 0, where);
     if (view >= views.size()) return;
     const std::string viewName = "buffer view " + std::to_string(view);
     std::uint64_t stride = number(views[view], "byteStride", 0, viewName);
-    if (stride == 0) stride = component;
+    if (stride == 0) stride = element;
     // The accessor fits its view (checked above), so this does not overflow.
     const std::optional<std::string> bytes = bufferRange(
         number(views[view], "buffer", buffers.size(), viewName),
