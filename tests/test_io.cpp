@@ -312,6 +312,10 @@ TEST(MeshImport, BadFilesGiveOneLineErrorsNamingTheFile) {
       {data("glb_line_loop_without_a_face.glb"),
        "mesh 0 primitive 0 is a line loop (mode 2) none of whose 36 indices has a neighbour "
        "pair within its 24 positions"},
+      // Assimp 5.2 takes an embedded image's extension as strchr(mimeType, '/') + 1.
+      {data("glb_image_mime_type_without_slash.glb"),
+       "image 0 has the mimeType \"imageopng\", without a '/', on which assimp 5.2 reads from "
+       "address 1"},
       {data("glb_line_loop_of_one_index.glb"),
        "is a line loop (mode 2) of 1 index, past which assimp 5.2 reads and writes"},
       {data("ply_float_overflowing_64_bits_then_list.ply"),
@@ -457,19 +461,6 @@ TEST(Isolation, ASegmentationFaultCostsTheReadOnly) {
             std::string::npos)
       << error;
   // The caller goes on: the next file loads.
-  EXPECT_EQ(loadMesh(data("box_quads.obj")).numVertices(), 8);
-}
-
-TEST(Isolation, AnAssimpCrashCostsTheReadOnly) {
-  // Found by the mesh fuzzer (twelfth session) and not refused by the preflight: a damaged
-  // glb on which assimp 5.2's glTF 2 reader calls strcmp on the address 1 (SIGSEGV in a
-  // program that only calls Assimp::Importer::ReadFile). In the child it costs the read.
-  if (!isolationLimitsMemory()) GTEST_SKIP() << "sanitizer build: the child's fault is a report";
-  const std::string path = data("glb_strcmp_on_a_bad_pointer_crashes_assimp.glb");
-  const std::string error = errorOf([&] { loadMesh(path); });
-  EXPECT_NE(error.find(path + ": the importer crashed reading the file (signal 11"),
-            std::string::npos)
-      << error;
   EXPECT_EQ(loadMesh(data("box_quads.obj")).numVertices(), 8);
 }
 

@@ -1420,6 +1420,25 @@ void preflightGltf(std::istream& in, const std::string& name, bool binary, bool 
     if (!in || static_cast<std::uint64_t>(in.gcount()) != length) return std::nullopt;
     return out;
   };
+  // Assimp 5.2's glTF 2 reader takes an embedded image's extension from its mimeType as
+  // strchr(mimeType, '/') + 1 and compares it with strcmp: a mimeType without '/' makes that
+  // the address 1, a SEGV (tests/regressions/mesh/glb_image_mime_type_without_slash_segv,
+  // found by the mesh fuzzer).
+  const nlohmann::json images = list("images");
+  for (size_t i = 0; i < images.size(); ++i) {
+    if (!images[i].is_object()) continue;
+    const auto mime = images[i].find("mimeType");
+    if (mime == images[i].end() || !mime->is_string()) continue;
+    const std::string& type = mime->get_ref<const std::string&>();
+    const auto uri = images[i].find("uri");
+    const bool embedded = images[i].contains("bufferView") ||
+                          (uri != images[i].end() && uri->is_string() &&
+                           uri->get_ref<const std::string&>().rfind("data:", 0) == 0);
+    if (embedded && !type.empty() && type.find('/') == std::string::npos)
+      preflightError(name, "image " + std::to_string(i) + " has the mimeType \"" +
+                               printable(type, 40) +
+                               "\", without a '/', on which assimp 5.2 reads from address 1");
+  }
   // Assimp 5.2's glTF 2 reader makes a line loop's (mode 2) faces from consecutive index
   // pairs, dropping those with an index past the positions, and closes the loop with
   // faces[0].mIndices[0]. When it dropped every pair, faces[0] was never made: a null
