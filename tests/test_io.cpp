@@ -346,6 +346,16 @@ TEST(MeshImport, BadFilesGiveOneLineErrorsNamingTheFile) {
        "the list in 2 0 (at byte 172) counts 1879048192 items"},
       {data("ply_element_named_by_its_count_oom.ply"),
        "the list in 6 0 (at byte 313) counts 540024880 items"},
+      // A property with no name ends the element for assimp 5.2 or makes it read on into
+      // its buffer's leftovers; the fuzzer's file then asked for 9.7 GB. Refused.
+      {data("ply_property_without_a_name.ply"),
+       "the header's line 'property float ' declares a property with no name"},
+      // Assimp 5.2 separates header words at spaces and tabs only: "float\vy" is no type to
+      // it and ends the vertex element, so each vertex line holds one value and the face's
+      // count is 999999999 (8 GB). Split at any white space, the walk read a second value,
+      // stopped at the "a" that is no number, and let the file through.
+      {data("ply_property_type_ended_by_a_vertical_tab_then_list.ply"),
+       "the list in face 0 (at byte 158) counts 999999999 items"},
       // A body line with fewer values than properties: assimp 5.2 reads on past its end into
       // what the header left in its line buffer, here a header line's digits, as a list
       // count of 954437176 items (7.6 GB, 40 s). Not modelled: refused.

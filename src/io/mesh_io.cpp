@@ -913,6 +913,26 @@ void preflightPlyBody(std::istream& in, const std::string& name, std::uintmax_t 
   }
 }
 
+// A header line's words as assimp 5.2's PLY parser separates them: at spaces and tabs only
+// (SkipSpaces, TokenMatch). Split as std::istream splits, at any white space, the line
+// "property float\vy" was a property to the preflight and ended the element for assimp.
+class PlyWords {
+ public:
+  explicit PlyWords(const std::string& line) : line_(line) {}
+  /// The next word into `word`; false (and `word` empty) when the line has no more.
+  bool next(std::string& word) {
+    while (at_ < line_.size() && (line_[at_] == ' ' || line_[at_] == '\t')) ++at_;
+    const size_t start = at_;
+    while (at_ < line_.size() && line_[at_] != ' ' && line_[at_] != '\t') ++at_;
+    word.assign(line_, start, at_ - start);
+    return !word.empty();
+  }
+
+ private:
+  const std::string& line_;
+  size_t at_ = 0;
+};
+
 bool endsPlyHeader(const std::string& line) {
   if (line.compare(0, 10, "end_header") != 0) return false;
   const char next = line.size() > 10 ? line[10] : '\n';
@@ -951,9 +971,9 @@ void preflightPly(std::istream& in, const std::string& name, std::uintmax_t size
   };
   for (int lines = 0; lines < 10000 && nextLine(line); ++lines) {
     longestLine = std::max(longestLine, line.size() + 1);
-    std::istringstream words(line);
+    PlyWords words(line);
     std::string keyword;
-    words >> keyword;
+    words.next(keyword);
     if (lines == 0) magic = startsWithPlyMagic(line);
     // Assimp 5.2 ends the header only at "end_header" at the very start of a line followed
     // by a space, a tab or a line end (TokenMatch); "end_header\v..." is not the end for it,
@@ -974,10 +994,11 @@ void preflightPly(std::istream& in, const std::string& name, std::uintmax_t size
     }
     if (keyword == "property" && inElement) {
       PlyProperty property;
-      std::string word, first, second;
-      words >> word;
+      std::string word, first, second, propertyName;
+      words.next(word);
       if (word == "list") {
-        words >> first >> second;
+        words.next(first);
+        words.next(second);
         property.list = true;
         property.count = plyType(first);
         property.item = plyType(second);
@@ -986,13 +1007,23 @@ void preflightPly(std::istream& in, const std::string& name, std::uintmax_t size
         property.item = plyType(word);
         inElement = property.item.bytes > 0;
       }
+      // A property of a known type with no name: assimp 5.2 then ends the element when
+      // spaces follow the type, and otherwise reads on past the line's end into what its
+      // earlier lines left in its buffer. Counted in, "property float32 " made the
+      // preflight walk a vertex's lines with one value too many, stop at a value that was
+      // no number, and miss a face list of 1.2 billion items that assimp went on to read
+      // (tests/regressions/mesh/ply_property_without_a_name_oom, found by the mesh
+      // fuzzer). The PLY format requires the name.
+      if (inElement && !words.next(propertyName))
+        preflightError(
+            name, "the header's line '" + printable(line) + "' declares a property with no name");
       if (inElement) elements.back().properties.push_back(property);
       continue;
     }
     inElement = false;
     if (keyword == "format") {
       std::string format;
-      words >> format;
+      words.next(format);
       ascii = format == "ascii";
       bigEndian = format == "binary_big_endian";
       // Assimp 5.2 corrupts its heap on a format it does not know
@@ -1011,12 +1042,12 @@ void preflightPly(std::istream& in, const std::string& name, std::uintmax_t size
       // first, an element with a list of 540 million items passed for empty
       // (tests/regressions/mesh/ply_element_named_by_its_count_oom, found by the mesh fuzzer).
       std::string element, digits;
-      if (!(words >> element)) continue;
+      if (!words.next(element)) continue;
       const bool named = element == "vertex" || element == "face" || element == "tristrips" ||
                          element == "edge" || element == "material";
       if (!named)
         digits = element;
-      else if (!(words >> digits))
+      else if (!words.next(digits))
         continue;
       std::uintmax_t count = 0;
       for (const char c : digits) {
