@@ -10,8 +10,8 @@
 namespace zsculpt::filter_rows {
 
 /// What every pass reads: Omega^2 in CSR, the affine basis B, Omega^2 B, per row m_i B_i
-/// then m_i (Omega^2 B)_i, and the coefficients c (4 x 3) then d (4 x 3) of the vector
-/// whose W product the pass takes (W u = Omega^2 u - (Omega^2 B) c - B d).
+/// then m_i (Omega^2 B)_i, the masses m_i, and the coefficients c (4 x 3) then d (4 x 3) of
+/// the vector whose W product the pass takes (W u = Omega^2 u - (Omega^2 B) c - B d).
 struct Inputs {
   const std::int32_t* outer = nullptr;
   const std::int32_t* inner = nullptr;
@@ -19,6 +19,7 @@ struct Inputs {
   const double* basis = nullptr;
   const double* omegaBasis = nullptr;
   const double* massBases = nullptr;
+  const double* mass = nullptr;
   const double* coefficient = nullptr;
   const double* dampHalf = nullptr;
 };

@@ -675,9 +675,10 @@ void Stepper::stepDriftFiltered(State& s, const Points& external, std::span<cons
   double* velocityC = velocityCoefficient_.data();
   // The row passes (filter_rows.h): AVX2 where the processor has it, the same bits.
   const filter_rows::Kernels& rows = filter_rows::kernels(options_.wideKernels);
-  const filter_rows::Inputs in{o2.outerIndexPtr(),  o2.innerIndexPtr(), o2.valuePtr(),
-                               affineBasis_.data(), omegaBasis_.data(), massBases,
-                               coefficient,         dampHalf_.data()};
+  const filter_rows::Inputs in{
+      o2.outerIndexPtr(), o2.innerIndexPtr(), o2.valuePtr(), affineBasis_.data(),
+      omegaBasis_.data(), massBases,          mass,          coefficient,
+      dampHalf_.data()};
   bool externalZero = true;
 #pragma omp parallel num_threads(threads_) if (threads_ > 1)
   {
