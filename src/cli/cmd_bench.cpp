@@ -134,29 +134,40 @@ std::pair<double, double> timeSteps(Stepper& stepper, State& state, const Points
 }
 
 // Bytes the default step must move at least: every array it reads or writes, once per pass
-// that streams it (docs/performance.md, "Roofline").
+// that streams it, for the path bench times (zero loads, the first kick kept from the last
+// step). Gathers of neighbours' rows through the CSR indices count once, as if every row
+// came from the cache the second time; writes count once (no read for ownership). Each
+// pass is listed as stepDefault and stepDriftFiltered run it (docs/performance.md,
+// "Roofline").
 double compulsoryBytes(const Model& model, const Stepper& stepper) {
   const double n = model.mesh.numVertices(), e = model.mesh.numEdges();
-  const double halfEdges = 2.0 * e;
   const double nnz = static_cast<double>(stepper.system().omega2().nonZeros());
-  const bool angles = model.properties.angularStiffness.maxCoeff() > 0.0;
-  double bytes = 0.0;
-  bytes += 4 * 24 * n;                      // r, v read and written
-  bytes += 24 * n;                          // external forces read (zero check)
-  bytes += halfEdges * 3 * 4 + 2 * 4 * n;   // neighbour, edge, target per half-edge; offsets
-  bytes += e * 2 * 8;                       // edge stiffness, rest length
-  bytes += n * 3 * 8;                       // inverse mass, damping factor, angular stiffness
-  if (angles) bytes += 8.0 * static_cast<double>(model.angles.size());  // rest angles
-  bytes += nnz * 12 + 4 * n;                // Omega^2 (CSR) for the filter
-  bytes += 2 * 24 * n;                      // internal forces written, read
-  bytes += 2 * 24 * n;                      // acceleration written, read
-  bytes += 2 * 24 * n;                      // kick written, read (next step)
-  if (stepper.filtersDrift()) {
-    // Four more products with W (docs/solver.md section 6), each: the vector read, the
-    // result written, Omega^2, B and Omega^2 B read; the velocity summed once more.
-    bytes += 4 * (2 * 24 * n + nnz * 12 + 4 * n + 64 * n) + 24 * n;
+  const double point = 24, scalar = 8;
+  const double csr = (nnz * 12 + 4 * n) / std::max(1.0, n);  // Omega^2: values, columns, rows
+  // The internal forces (ForceKernel::scatter, then gatherBlock): positions in, forces out;
+  // per half-edge its neighbour, edge and target; per edge stiffness and rest length; per
+  // vertex its offsets and angular stiffness; per angle spring its rest angle.
+  double forces = point + point + (2.0 * e * 12 + 4 * n) / std::max(1.0, n) +
+                  e * 16 / std::max(1.0, n) + scalar;
+  if (model.properties.angularStiffness.maxCoeff() > 0.0)
+    forces += (8.0 * static_cast<double>(model.angles.size()) + 4 * n) / std::max(1.0, n);
+  const double zeroCheck = point;  // the external forces, read to see they are zero
+  double perVertex = zeroCheck + forces;
+  if (!stepper.filtersDrift()) {
+    perVertex += point + point + scalar + 2 * point;        // v += kick (damped), r += T v
+    perVertex += point + scalar + point;                    // a = M^-1 f
+    perVertex += csr + point + point + 2 * point + scalar;  // kick = half a - filter W a, v
+    return perVertex * n;
   }
-  return bytes;
+  const double bases = 4 * scalar + 4 * scalar;         // a row of B and of Omega^2 B
+  const double massBases = 8 * scalar;                  // m_i B_i and m_i (Omega^2 B)_i
+  perVertex += 2 * point + point + scalar + massBases;  // v = v e^{-GT/2} + kick, summed
+  // Three Horner passes, out = a v + s W u, each summing (Omega^2 B)^T M out.
+  perVertex += 3 * (point + point + point + csr + bases + scalar);
+  perVertex += point + point + 2 * point + csr + bases;           // r += T (v + T^2 W w)
+  perVertex += point + scalar + point + massBases;                // a = M^-1 f, summed
+  perVertex += point + point + 2 * point + csr + bases + scalar;  // the last kick, v
+  return perVertex * n;
 }
 
 ModelBench benchModel(const std::string& name, const std::function<Model()>& build,
