@@ -995,10 +995,16 @@ void preflightPly(std::istream& in, const std::string& name, std::uintmax_t size
     if (keyword == "property" && inElement) {
       PlyProperty property;
       std::string word, first, second, propertyName;
-      words.next(word);
+      // A line that stops right after a word assimp 5.2 matched (TokenMatch takes the
+      // character after the word, here the line end) has it read on past the line's end.
+      auto cutShort = [&] {
+        preflightError(name, "the header's line '" + printable(line) +
+                                 "' is a property declaration cut short (property <type> "
+                                 "<name>, or property list <count type> <item type> <name>)");
+      };
+      if (!words.next(word)) cutShort();
       if (word == "list") {
-        words.next(first);
-        words.next(second);
+        if (!words.next(first) || (plyType(first).bytes > 0 && !words.next(second))) cutShort();
         property.list = true;
         property.count = plyType(first);
         property.item = plyType(second);
@@ -1014,9 +1020,7 @@ void preflightPly(std::istream& in, const std::string& name, std::uintmax_t size
       // no number, and miss a face list of 1.2 billion items that assimp went on to read
       // (tests/regressions/mesh/ply_property_without_a_name_oom, found by the mesh
       // fuzzer). The PLY format requires the name.
-      if (inElement && !words.next(propertyName))
-        preflightError(
-            name, "the header's line '" + printable(line) + "' declares a property with no name");
+      if (inElement && !words.next(propertyName)) cutShort();
       if (inElement) elements.back().properties.push_back(property);
       continue;
     }
@@ -1042,13 +1046,23 @@ void preflightPly(std::istream& in, const std::string& name, std::uintmax_t size
       // first, an element with a list of 540 million items passed for empty
       // (tests/regressions/mesh/ply_element_named_by_its_count_oom, found by the mesh fuzzer).
       std::string element, digits;
-      if (!words.next(element)) continue;
+      // "element" or "element vertex" with nothing after: assimp 5.2's TokenMatch takes the
+      // line end after the word and reads the name or the count on past it, from what longer
+      // lines left in its buffer: "element vertex" cut by a NUL byte became a count of
+      // millions (tests/regressions/mesh/ply_element_without_a_count_oom, found by the mesh
+      // fuzzer). The PLY format requires both.
+      auto cutShort = [&] {
+        preflightError(name, "the header's line '" + printable(line) +
+                                 "' is an element declaration cut short (element <name> "
+                                 "<count>)");
+      };
+      if (!words.next(element)) cutShort();
       const bool named = element == "vertex" || element == "face" || element == "tristrips" ||
                          element == "edge" || element == "material";
       if (!named)
         digits = element;
       else if (!words.next(digits))
-        continue;
+        cutShort();
       std::uintmax_t count = 0;
       for (const char c : digits) {
         if (c < '0' || c > '9') break;
