@@ -318,6 +318,9 @@ TEST(MeshImport, BadFilesGiveOneLineErrorsNamingTheFile) {
        "address 1"},
       {data("glb_line_loop_of_one_index.glb"),
        "is a line loop (mode 2) of 1 index, past which assimp 5.2 reads and writes"},
+      // With no positions ("aptributes" for "attributes") every pair is out of range.
+      {data("glb_line_loop_without_positions.glb"),
+       "mesh 0 primitive 0 is a line loop (mode 2) without positions"},
       {data("ply_float_overflowing_64_bits_then_list.ply"),
        "the list in vertex 0 (at byte 126) counts 1661992959 items, more than the 3 bytes"},
       // The fuzzer's input, where the same made 830006163 items (6.6 GB) at vertex 11. Its

@@ -1501,12 +1501,21 @@ void preflightGltf(std::istream& in, const std::string& name, bool binary, bool 
       preflightError(name, what + " is a line loop (mode 2) of " + std::to_string(count) +
                                (count == 1 ? " index" : " indices") +
                                ", past which assimp 5.2 reads and writes");
+    // Without positions (no "attributes" object, no POSITION in it, or none counted) assimp
+    // 5.2 makes the mesh with no vertices, so every pair is out of range whatever the
+    // indices (tests/regressions/mesh/glb_line_loop_without_positions_segv, found by the
+    // mesh fuzzer: "aptributes").
     const auto attributes = primitive.find("attributes");
-    if (attributes == primitive.end() || !attributes->is_object() ||
-        !attributes->contains("POSITION") || !acc.contains("bufferView"))
-      return;
     const std::uint64_t vertices =
-        accessorCount((*attributes)["POSITION"], what + " POSITION") & 0xffffffffu;
+        attributes != primitive.end() && attributes->is_object() && attributes->contains("POSITION")
+            ? accessorCount((*attributes)["POSITION"], what + " POSITION") & 0xffffffffu
+            : 0;
+    if (vertices == 0)
+      preflightError(name, what +
+                               " is a line loop (mode 2) without positions: assimp 5.2 "
+                               "then closes the loop through a face it never made (a null "
+                               "dereference)");
+    if (!acc.contains("bufferView")) return;
     // Assimp reads an index as the first min(element size, 4) bytes of its element, whatever
     // the accessor's types: a float VEC3 accessor named as indices gives each x's bits
     // (tests/regressions/mesh/glb_line_loop_over_float_indices_segv).
