@@ -142,20 +142,21 @@ std::pair<double, double> timeSteps(Stepper& stepper, State& state, const Points
 double compulsoryBytes(const Model& model, const Stepper& stepper) {
   const double n = model.mesh.numVertices(), e = model.mesh.numEdges();
   const double nnz = static_cast<double>(stepper.system().omega2().nonZeros());
+  const double perRow = 1.0 / std::max(1.0, n);  // a count over the model, per vertex
   const double point = 24, scalar = 8;
-  const double csr = (nnz * 12 + 4 * n) / std::max(1.0, n);  // Omega^2: values, columns, rows
+  const double csr = (nnz * 12 + 4 * n) * perRow;  // Omega^2: values, columns, row starts
   // The internal forces (ForceKernel::scatter, then gatherBlock): positions in, forces out;
   // per half-edge its neighbour, edge and target; per edge stiffness and rest length; per
   // vertex its offsets and angular stiffness; per angle spring its rest angle.
-  double forces = point + point + (2.0 * e * 12 + 4 * n) / std::max(1.0, n) +
-                  e * 16 / std::max(1.0, n) + scalar;
+  double forces = point + point + (2.0 * e * 12 + 4 * n + e * 16) * perRow + scalar;
   if (model.properties.angularStiffness.maxCoeff() > 0.0)
-    forces += (8.0 * static_cast<double>(model.angles.size()) + 4 * n) / std::max(1.0, n);
+    forces += (8.0 * static_cast<double>(model.angles.size()) + 4 * n) * perRow;
   const double zeroCheck = point;  // the external forces, read to see they are zero
   double perVertex = zeroCheck + forces;
   if (!stepper.filtersDrift()) {
-    // (As below 65,536 vertices, where the accelerations are stored; above, the kick makes
-    // them on the fly from the forces and inverse masses: 48 bytes fewer.)
+    // (As where the step stores the accelerations, up to kStoredAccelerationVertices in
+    // stepper.cpp; above, the kick makes them on the fly from the forces and inverse
+    // masses: 48 bytes fewer.)
     perVertex += 2 * point + point + scalar + 2 * point;    // v = v e^{-GT/2} + kick, r += T v
     perVertex += point + scalar + point;                    // a = M^-1 f
     perVertex += csr + point + point + 2 * point + scalar;  // kick = half a - filter W a, v

@@ -971,6 +971,13 @@ void preflightPly(std::istream& in, const std::string& name, std::uintmax_t size
   };
   for (int lines = 0; lines < 10000 && nextLine(line); ++lines) {
     longestLine = std::max(longestLine, line.size() + 1);
+    // A declaration that stops right after a word assimp 5.2 matched: its TokenMatch takes
+    // the character after the word, here the line end, and reads what should follow on past
+    // the line's end, from what longer lines left in its buffer. The PLY format requires it.
+    auto cutShort = [&](const char* declaration, const char* form) {
+      preflightError(name, "the header's line '" + printable(line) + "' is " + declaration +
+                               " cut short (" + form + ")");
+    };
     PlyWords words(line);
     std::string keyword;
     words.next(keyword);
@@ -995,16 +1002,14 @@ void preflightPly(std::istream& in, const std::string& name, std::uintmax_t size
     if (keyword == "property" && inElement) {
       PlyProperty property;
       std::string word, first, second, propertyName;
-      // A line that stops right after a word assimp 5.2 matched (TokenMatch takes the
-      // character after the word, here the line end) has it read on past the line's end.
-      auto cutShort = [&] {
-        preflightError(name, "the header's line '" + printable(line) +
-                                 "' is a property declaration cut short (property <type> "
-                                 "<name>, or property list <count type> <item type> <name>)");
+      auto propertyCutShort = [&] {
+        cutShort("a property declaration",
+                 "property <type> <name>, or property list <count type> <item type> <name>");
       };
-      if (!words.next(word)) cutShort();
+      if (!words.next(word)) propertyCutShort();
       if (word == "list") {
-        if (!words.next(first) || (plyType(first).bytes > 0 && !words.next(second))) cutShort();
+        if (!words.next(first) || (plyType(first).bytes > 0 && !words.next(second)))
+          propertyCutShort();
         property.list = true;
         property.count = plyType(first);
         property.item = plyType(second);
@@ -1020,7 +1025,7 @@ void preflightPly(std::istream& in, const std::string& name, std::uintmax_t size
       // no number, and miss a face list of 1.2 billion items that assimp went on to read
       // (tests/regressions/mesh/ply_property_without_a_name_oom, found by the mesh
       // fuzzer). The PLY format requires the name.
-      if (inElement && !words.next(propertyName)) cutShort();
+      if (inElement && !words.next(propertyName)) propertyCutShort();
       if (inElement) elements.back().properties.push_back(property);
       continue;
     }
@@ -1046,23 +1051,17 @@ void preflightPly(std::istream& in, const std::string& name, std::uintmax_t size
       // first, an element with a list of 540 million items passed for empty
       // (tests/regressions/mesh/ply_element_named_by_its_count_oom, found by the mesh fuzzer).
       std::string element, digits;
-      // "element" or "element vertex" with nothing after: assimp 5.2's TokenMatch takes the
-      // line end after the word and reads the name or the count on past it, from what longer
-      // lines left in its buffer: "element vertex" cut by a NUL byte became a count of
-      // millions (tests/regressions/mesh/ply_element_without_a_count_oom, found by the mesh
-      // fuzzer). The PLY format requires both.
-      auto cutShort = [&] {
-        preflightError(name, "the header's line '" + printable(line) +
-                                 "' is an element declaration cut short (element <name> "
-                                 "<count>)");
-      };
-      if (!words.next(element)) cutShort();
+      // "element" or "element vertex" with nothing after (cutShort): "element vertex" cut
+      // by a NUL byte became a count of millions to assimp 5.2
+      // (tests/regressions/mesh/ply_element_without_a_count_oom, found by the mesh fuzzer).
+      auto elementCutShort = [&] { cutShort("an element declaration", "element <name> <count>"); };
+      if (!words.next(element)) elementCutShort();
       const bool named = element == "vertex" || element == "face" || element == "tristrips" ||
                          element == "edge" || element == "material";
       if (!named)
         digits = element;
       else if (!words.next(digits))
-        cutShort();
+        elementCutShort();
       std::uintmax_t count = 0;
       for (const char c : digits) {
         if (c < '0' || c > '9') break;

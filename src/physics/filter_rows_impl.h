@@ -158,8 +158,8 @@ void hornerRows(const Inputs& in, std::int32_t begin, std::int32_t end, const do
     x.store(out + o);
     // m_i (Omega^2 B)_i made here from the row of Omega^2 B that wProduct just read: the
     // product massBases holds (the same bits), without streaming its 64-byte rows, of which
-    // this pass would use half. At 1M vertices that is 168 of some 1900 bytes a vertex moves
-    // per step, and the step waits on memory (docs/performance.md).
+    // this pass would use half: 168 of the 1560 bytes a vertex the step moves, and at scale
+    // the step waits on memory (docs/performance.md).
     const double m = in.mass[i];
     const double* ob = in.omegaBasis + 4 * static_cast<std::size_t>(i);
     for (int q = 0; q < 4; ++q) omega[q] += (m * ob[q]) * x;
