@@ -515,6 +515,22 @@ TEST_F(Cli, RunawayEnergyIsCaughtBeforeTheStateIsNonFinite) {
   EXPECT_EQ(run("simulate builtin:torus --force 3:0,0,5:0:1 --torque 50:0,0,2:0:2 --steps 3000").status, 0);
 }
 
+TEST_F(Cli, BenchTimesOneModelAndUnderADrag) {
+  // One model's figures as JSON; --drag times the step under a load on one vertex, the path
+  // a user's drag takes (no first kick kept from the last step).
+  for (const bool drag : {false, true}) {
+    const Result r = run(std::string("bench builtin:torus:20:20 --angular-stiffness 0.05 --steps 5 "
+                                     "--quick --json") +
+                         (drag ? " --drag" : ""));
+    ASSERT_EQ(r.status, 0) << r.err;
+    const auto m = nlohmann::json::parse(r.out).at("model");
+    EXPECT_EQ(m.at("vertices").get<int>(), 400);
+    EXPECT_EQ(m.at("drag").get<bool>(), drag);
+    EXPECT_GT(m.at("step_seconds").get<double>(), 0.0);
+    EXPECT_GE(m.at("steps_timed").get<long>(), 5);
+  }
+}
+
 TEST_F(Cli, BenchPeersMeetTheErrorWithinStableStepsAgainstAConvergedReference) {
   // docs/performance.md, "Peers": every scheme's trajectory is checked against a reference
   // whose own error is a tenth of the target, never at a step beyond the scheme's stable

@@ -94,6 +94,7 @@ struct Options {
   bool json = false, table1 = false, scaling = false, roofline = false, peers = false;
   bool quick = false;
   bool driftFilter = true;  // StepperOptions::driftFilter (the default scheme on braced models)
+  bool drag = false;        // time the step under a load on one vertex, as while a user drags
 };
 
 struct ModelBench {
@@ -110,6 +111,7 @@ struct ModelBench {
   double residentPerVertex = 0.0, peakPerVertex = 0.0, stepperPerVertex = 0.0;
   double bytesPerStep = 0.0;     // compulsory traffic of the default step (roofline)
   long stepsTimed = 0;
+  bool drag = false;  // timed under a load on one vertex
 };
 
 // Median seconds per step: blocks of k steps (k such that a block lasts >= 10 ms), repeats
@@ -173,9 +175,9 @@ double compulsoryBytes(const Model& model, const Stepper& stepper) {
   return perVertex * n;
 }
 
-ModelBench benchModel(const std::string& name, const std::function<Model()>& build,
-                      Scheme scheme, double dtRatio, int threads, long steps, double budget,
-                      bool serialToo, bool transformationToo, bool driftFilter) {
+ModelBench benchModel(const std::string& name, const std::function<Model()>& build, Scheme scheme,
+                      double dtRatio, int threads, long steps, double budget, bool serialToo,
+                      bool transformationToo, bool driftFilter, bool drag = false) {
   ModelBench b;
   b.name = name;
   b.scheme = std::string(schemeName(scheme));
@@ -195,7 +197,11 @@ ModelBench benchModel(const std::string& name, const std::function<Model()>& bui
   b.threads = stepper->threads();
   State state = State::atRest(mesh);
   randomVelocity(model.properties.mass, 0.01, 1, state.velocity);
-  const Points external = Points::Zero(mesh.numVertices(), 3);
+  // A drag (cli drag, the app's drag tool) is a load on one vertex: with it the step cannot
+  // keep its first kick from the last step (stepper.cpp), so it takes the loaded path.
+  Points external = Points::Zero(mesh.numVertices(), 3);
+  b.drag = drag;
+  if (drag && mesh.numVertices() > 0) external(0, 2) = 1e-3 * model.properties.mass[0];
   const auto [step, stepMin] = timeSteps(*stepper, state, external, steps, budget, &b.stepsTimed);
   b.step = step;
   b.stepMin = stepMin;
@@ -265,7 +271,8 @@ std::string modelJson(const ModelBench& b, const std::string& indent) {
   if (b.transformation > 0.0) o << ", \"transformation_seconds\": " << num(b.transformation);
   o << ", \"step_seconds\": " << num(b.step) << ", \"step_seconds_min\": " << num(b.stepMin)
     << ", \"steps_timed\": " << b.stepsTimed << ", \"steps_per_second\": " << num(1.0 / b.step)
-    << ", \"vertex_steps_per_second\": " << num(b.vertices / b.step);
+    << ", \"vertex_steps_per_second\": " << num(b.vertices / b.step)
+    << ", \"drag\": " << (b.drag ? "true" : "false");
   if (b.stepSerial > 0.0)
     o << ", \"step_seconds_one_thread\": " << num(b.stepSerial)
       << ", \"thread_speedup\": " << num(b.stepSerial / b.step);
@@ -739,13 +746,14 @@ int runBench(const Options& o) {
       };
     else
       build = [&o]() { return o.model.load().model; };
-    const ModelBench b = benchModel(name, build, scheme, o.dtRatio, o.threads, o.steps,
-                                    o.quick ? 0.2 : 2.0, true, scheme == Scheme::Paper,
-                                    o.driftFilter);
+    const ModelBench b =
+        benchModel(name, build, scheme, o.dtRatio, o.threads, o.steps, o.quick ? 0.2 : 2.0, true,
+                   scheme == Scheme::Paper, o.driftFilter, o.drag);
     if (o.json) {
       sections.push_back("  \"model\": " + modelJson(b, ""));
     } else {
-      std::cout << "scheme " << b.scheme << ", dt " << b.period << " s\n";
+      std::cout << "scheme " << b.scheme << ", dt " << b.period << " s"
+                << (b.drag ? ", under a drag (a load on one vertex)" : "") << "\n";
       printModelHeader();
       printModelRow(b);
       std::cout << "(precompute: building the stepper (matrices, force caches, work space); "
@@ -798,6 +806,8 @@ void addBenchCommand(CLI::App& root, CommandList& commands) {
   app->add_flag("--peers", o->peers,
                 "wall time of each scheme to simulate 10 s at a trajectory error of 1e-3");
   app->add_flag("--quick", o->quick, "smaller models and shorter runs (for tests)");
+  app->add_flag("--drag", o->drag,
+                "one model: time the step under a load on one vertex, as while a user drags");
   app->add_flag("--drift-filter,!--no-drift-filter", o->driftFilter,
                 "default scheme on braced models: filter the drift too (on unless "
                 "--no-drift-filter; docs/solver.md, section 6)");

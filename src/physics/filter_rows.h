@@ -28,10 +28,14 @@ struct Inputs {
 /// sums (B^T M x then (Omega^2 B)^T M x, 4 x 3 each, row by row) to partial; one that sums
 /// only the second leaves the first 12 alone.
 struct Kernels {
-  /// kick = half a - filter (W a); with last, v = (v + kick) e^{-GT/2} too.
-  void (*kick)(const Inputs&, std::int32_t begin, std::int32_t end, const double* a, double* kick,
-               double* v, double half, double filter, bool last);
-  /// v = v e^{-GT/2} + kick, summed.
+  /// The first kick: kick = half a - filter (W a), then v = v e^{-GT/2} + kick, summed (the
+  /// velocity pass fused in, where the kick was not kept from the last step).
+  void (*firstKick)(const Inputs&, std::int32_t begin, std::int32_t end, const double* a,
+                    double* kick, double* v, double half, double filter, double* partial);
+  /// The last kick: kick = half a - filter (W a), then v = (v + kick) e^{-GT/2}.
+  void (*lastKick)(const Inputs&, std::int32_t begin, std::int32_t end, const double* a,
+                   double* kick, double* v, double half, double filter);
+  /// v = v e^{-GT/2} + kick, summed (the first kick kept from the last step).
   void (*velocity)(const Inputs&, std::int32_t begin, std::int32_t end, double* v,
                    const double* kick, double* partial);
   /// out = a v + scale (W u), its (Omega^2 B)^T M sum only.

@@ -115,15 +115,49 @@ inline P wProduct(const Inputs& in, const Coefficients<P>& k, const double* u, s
   return w;
 }
 
+// Adds m_i B_i x and m_i (Omega^2 B)_i x to the block sums.
 template <class P>
-void kickRows(const Inputs& in, std::int32_t begin, std::int32_t end, const double* a, double* kick,
-              double* v, double half, double filter, bool last) {
+inline void addMassBases(const Inputs& in, std::int32_t i, P x, P* basis, P* omega) {
+  const double* mb = in.massBases + 8 * static_cast<std::size_t>(i);
+  for (int q = 0; q < 4; ++q) {
+    basis[q] += mb[q] * x;
+    omega[q] += mb[4 + q] * x;
+  }
+}
+
+template <class P>
+inline void storeSums(const P* basis, const P* omega, double* partial) {
+  for (int q = 0; q < 4; ++q) {
+    basis[q].store(partial + 3 * q);
+    omega[q].store(partial + 12 + 3 * q);
+  }
+}
+
+template <class P>
+void firstKickRows(const Inputs& in, std::int32_t begin, std::int32_t end, const double* a,
+                   double* kick, double* v, double half, double filter, double* partial) {
+  const Coefficients<P> k(in.coefficient);
+  P basis[4], omega[4];
+  for (std::int32_t i = begin; i < end; ++i) {
+    const std::size_t o = 3 * static_cast<std::size_t>(i);
+    const P kicked = half * P::load(a + o) - filter * wProduct(in, k, a, i);
+    kicked.store(kick + o);
+    const P vi = P::load(v + o) * in.dampHalf[i] + kicked;
+    vi.store(v + o);
+    addMassBases(in, i, vi, basis, omega);
+  }
+  storeSums(basis, omega, partial);
+}
+
+template <class P>
+void lastKickRows(const Inputs& in, std::int32_t begin, std::int32_t end, const double* a,
+                  double* kick, double* v, double half, double filter) {
   const Coefficients<P> k(in.coefficient);
   for (std::int32_t i = begin; i < end; ++i) {
     const std::size_t o = 3 * static_cast<std::size_t>(i);
     const P kicked = half * P::load(a + o) - filter * wProduct(in, k, a, i);
     kicked.store(kick + o);
-    if (last) ((P::load(v + o) + kicked) * in.dampHalf[i]).store(v + o);
+    ((P::load(v + o) + kicked) * in.dampHalf[i]).store(v + o);
   }
 }
 
@@ -135,16 +169,9 @@ void velocityRows(const Inputs& in, std::int32_t begin, std::int32_t end, double
     const std::size_t o = 3 * static_cast<std::size_t>(i);
     const P vi = P::load(v + o) * in.dampHalf[i] + P::load(kick + o);
     vi.store(v + o);
-    const double* mb = in.massBases + 8 * static_cast<std::size_t>(i);
-    for (int q = 0; q < 4; ++q) {
-      basis[q] += mb[q] * vi;
-      omega[q] += mb[4 + q] * vi;
-    }
+    addMassBases(in, i, vi, basis, omega);
   }
-  for (int q = 0; q < 4; ++q) {
-    basis[q].store(partial + 3 * q);
-    omega[q].store(partial + 12 + 3 * q);
-  }
+  storeSums(basis, omega, partial);
 }
 
 template <class P>
@@ -201,8 +228,8 @@ void plainDriftRows(const Inputs& in, std::int32_t begin, std::int32_t end, doub
 
 template <class P>
 Kernels makeKernels() {
-  return {&kickRows<P>,  &velocityRows<P>,  &hornerRows<P>,
-          &driftRows<P>, &plainKickRows<P>, &plainDriftRows<P>};
+  return {&firstKickRows<P>, &lastKickRows<P>,  &velocityRows<P>,  &hornerRows<P>,
+          &driftRows<P>,     &plainKickRows<P>, &plainDriftRows<P>};
 }
 
 }  // namespace

@@ -384,11 +384,12 @@ ZSCULPT_KERNEL void edgeArms(Index count, const Index* __restrict first,
   }
 }
 
-// Cosine and squared sine of the angle between the unit arms p[k] and q[k].
+// Cosine and sine of the angle between the unit arms p[k] and q[k] (the sine as |u x w|, its
+// square root taken in this loop, which vectorises, rather than in a pass of its own).
 ZSCULPT_KERNEL void angleCosSin(Index m, const Index* __restrict p, const Index* __restrict q,
                                 const double* __restrict ax, const double* __restrict ay,
                                 const double* __restrict az, double* __restrict cosine,
-                                double* __restrict sine2) {
+                                double* __restrict sine) {
 #pragma omp simd
   for (Index k = 0; k < m; ++k) {
     const Index i = p[k], j = q[k];
@@ -396,7 +397,7 @@ ZSCULPT_KERNEL void angleCosSin(Index m, const Index* __restrict p, const Index*
     const double wx = ax[j], wy = ay[j], wz = az[j];
     cosine[k] = ux * wx + uy * wy + uz * wz;
     const double cx = uy * wz - uz * wy, cy = uz * wx - ux * wz, cz = ux * wy - uy * wx;
-    sine2[k] = cx * cx + cy * cy + cz * cz;
+    sine[k] = std::sqrt(cx * cx + cy * cy + cz * cz);
   }
 }
 
@@ -431,7 +432,7 @@ ZSCULPT_KERNEL double angleForces(Index m, const Index* __restrict p, const Inde
 ZSCULPT_KERNEL void runCosSin(Index pairs, Index count, const Index* __restrict pairA,
                               const Index* __restrict pairB, const double* __restrict ax,
                               const double* __restrict ay, const double* __restrict az,
-                              double* __restrict cosine, double* __restrict sine2) {
+                              double* __restrict cosine, double* __restrict sine) {
   for (Index k = 0; k < pairs; ++k) {
     const double* __restrict ux = ax + pairA[k] * count;
     const double* __restrict uy = ay + pairA[k] * count;
@@ -440,13 +441,13 @@ ZSCULPT_KERNEL void runCosSin(Index pairs, Index count, const Index* __restrict 
     const double* __restrict wy = ay + pairB[k] * count;
     const double* __restrict wz = az + pairB[k] * count;
     double* __restrict co = cosine + k * count;
-    double* __restrict si = sine2 + k * count;
+    double* __restrict si = sine + k * count;
 #pragma omp simd
     for (Index i = 0; i < count; ++i) {
       co[i] = ux[i] * wx[i] + uy[i] * wy[i] + uz[i] * wz[i];
       const double cx = uy[i] * wz[i] - uz[i] * wy[i], cy = uz[i] * wx[i] - ux[i] * wz[i],
                    cz = ux[i] * wy[i] - uy[i] * wx[i];
-      si[i] = cx * cx + cy * cy + cz * cz;
+      si[i] = std::sqrt(cx * cx + cy * cy + cz * cz);
     }
   }
 }
@@ -519,6 +520,30 @@ ZSCULPT_KERNEL void slotSums(Index degree, Index count, Index maxAngles,
         y[i] += py[i];
         z[i] += pz[i];
       }
+    }
+  }
+}
+
+// The slot sums of a run of L vertices scaled by each vertex's kappa_theta (the force on
+// the end of each arm), and their sums per vertex in arm order (the reaction on the centre,
+// negated by the caller): kappa g and 0 + f_0 + f_1 + ..., rounding for rounding what a
+// vertex-by-vertex loop makes, vectorised across the vertices.
+ZSCULPT_KERNEL void slotScale(Index degree, Index count, const double* __restrict kappa,
+                              double* __restrict gx, double* __restrict gy, double* __restrict gz,
+                              double* __restrict cx, double* __restrict cy, double* __restrict cz) {
+  for (Index i = 0; i < count; ++i) cx[i] = cy[i] = cz[i] = 0.0;
+  for (Index a = 0; a < degree; ++a) {
+    double* __restrict x = gx + a * count;
+    double* __restrict y = gy + a * count;
+    double* __restrict z = gz + a * count;
+#pragma omp simd
+    for (Index i = 0; i < count; ++i) {
+      x[i] = kappa[i] * x[i];
+      y[i] = kappa[i] * y[i];
+      z[i] = kappa[i] * z[i];
+      cx[i] += x[i];
+      cy[i] += y[i];
+      cz[i] += z[i];
     }
   }
 }
@@ -873,11 +898,31 @@ void ForceKernel::scatterBlock(const Model& model, const Points& position, Point
   const size_t second = static_cast<size_t>(maxAngles_);
   bool anyAngle = false;
 
+  // The degenerate angles of centre v (arms (anti)parallel or of zero length), whose
+  // direction angleSpringForce picks, into the accumulator (tc: the centre's row);
+  // sineOf(k), armsOf(k): the vertex's angle k.
+  auto depositDegenerate = [&](Index v, double kappa, double* tc, auto&& sineOf, auto&& armsOf) {
+    const Index count = angleOffsets[v + 1] - angleOffsets[v];
+    for (Index k = 0; k < count; ++k) {
+      if (sineOf(k) > 1e-12) continue;
+      Index hp, hq;
+      armsOf(k, hp, hq);
+      Vec3 fc, fa, fb;
+      angleSpringForce(position.row(v), position.row(nbr[hp]), position.row(nbr[hq]), kappa,
+                       restAngle[angleOffsets[v] + k], fc, fa, fb);
+      double* ta = acc + 3 * static_cast<size_t>(target_[static_cast<size_t>(hp)]);
+      double* tb = acc + 3 * static_cast<size_t>(target_[static_cast<size_t>(hq)]);
+      for (int d = 0; d < 3; ++d) {
+        ta[d] += fa[d];
+        tb[d] += fb[d];
+        tc[d] += fc[d];
+      }
+    }
+  };
   // Deposits the angle forces of centre v: kappa_theta times the force on the end of each of
   // its arms (arm a is half-edge slot(a) of the kernel's order), in arm order, minus their
-  // sum on the centre, then the degenerate angles (arms (anti)parallel or of zero length),
-  // whose direction angleSpringForce picks. armForce(a, f): the arm's summed force without
-  // kappa_theta; sineOf(k), armsOf(k): the vertex's angle k.
+  // sum on the centre, then the degenerate angles. armForce(a, f): the arm's summed force
+  // without kappa_theta.
   auto deposit = [&](Index v, double kappa, auto&& slot, auto&& armForce, bool checkDegenerate,
                      auto&& sineOf, auto&& armsOf) {
     double cx = 0.0, cy = 0.0, cz = 0.0;
@@ -897,23 +942,27 @@ void ForceKernel::scatterBlock(const Model& model, const Points& position, Point
     tc[0] -= cx;
     tc[1] -= cy;
     tc[2] -= cz;
-    if (!checkDegenerate) return;
-    const Index count = angleOffsets[v + 1] - angleOffsets[v];
-    for (Index k = 0; k < count; ++k) {
-      if (sineOf(k) > 1e-12) continue;
-      Index hp, hq;
-      armsOf(k, hp, hq);
-      Vec3 fc, fa, fb;
-      angleSpringForce(position.row(v), position.row(nbr[hp]), position.row(nbr[hq]), kappa,
-                       restAngle[angleOffsets[v] + k], fc, fa, fb);
-      double* ta = acc + 3 * static_cast<size_t>(target_[static_cast<size_t>(hp)]);
-      double* tb = acc + 3 * static_cast<size_t>(target_[static_cast<size_t>(hq)]);
-      for (int d = 0; d < 3; ++d) {
-        ta[d] += fa[d];
-        tb[d] += fb[d];
-        tc[d] += fc[d];
-      }
+    if (checkDegenerate) depositDegenerate(v, kappa, tc, sineOf, armsOf);
+  };
+  // deposit with the arms' forces already scaled by kappa_theta and summed (slotScale):
+  // armForce(a, f) the force on arm a's end, centre(c) their sum.
+  auto depositScaled = [&](Index v, auto&& slot, auto&& armForce, auto&& centre,
+                           bool checkDegenerate, auto&& sineOf, auto&& armsOf) {
+    for (Index a = 0; a < off[v + 1] - off[v]; ++a) {
+      double f[3];
+      armForce(a, f);
+      double* t = acc + 3 * static_cast<size_t>(target_[static_cast<size_t>(slot(a))]);
+      t[0] += f[0];
+      t[1] += f[1];
+      t[2] += f[2];
     }
+    double c[3];
+    centre(c);
+    double* tc = acc + 3 * static_cast<size_t>(v - v0);
+    tc[0] -= c[0];
+    tc[1] -= c[1];
+    tc[2] -= c[2];
+    if (checkDegenerate) depositDegenerate(v, kappaTheta[v], tc, sineOf, armsOf);
   };
 
   // The angles of a run of `count` vertices from v of one degree whose arms are by slot in
@@ -925,8 +974,6 @@ void ForceKernel::scatterBlock(const Model& model, const Points& position, Point
     const Index* pa = pairA_.data() + pairStart_[static_cast<size_t>(degree)];
     const Index* pb = pairB_.data() + pairStart_[static_cast<size_t>(degree)];
     runCosSin(pairs, count, pa, pb, tx, ty, tz, s.cosine.data(), s.sine.data());
-    Eigen::Map<Eigen::ArrayXd> sines(s.sine.data(), pairs * count);
-    sines = sines.sqrt();
     const double smallest =
         runForces(pairs, count, pa, pb, tx, ty, tz, tl, s.sine.data(), s.cosine.data(),
                   restAngle + angleOffsets[v], s.fx.data(), s.fy.data(), s.fz.data(),
@@ -934,19 +981,29 @@ void ForceKernel::scatterBlock(const Model& model, const Points& position, Point
     slotSums(degree, count, maxAngles_,
              armTermStart_.data() + termStart_[static_cast<size_t>(degree)], armTerm_.data(),
              s.fx.data(), s.fy.data(), s.fz.data(), s.gx.data(), s.gy.data(), s.gz.data());
+    // deposit's products and centre sums for all the run's vertices at once (the angle
+    // forces in fx.. are spent): the same values, leaving deposit the scattered additions.
+    double* cx = s.fx.data();
+    double* cy = s.fy.data();
+    double* cz = s.fz.data();
+    slotScale(degree, count, kappaTheta + v, s.gx.data(), s.gy.data(), s.gz.data(), cx, cy, cz);
     for (Index i = 0; i < count; ++i) {
       const Index w = v + i;
       if (kappaTheta[w] == 0.0) continue;
-      deposit(
-          w, kappaTheta[w], [&](Index a) { return slot(i, a); },
+      depositScaled(
+          w, [&](Index a) { return slot(i, a); },
           [&](Index a, double* f) {
             const size_t at = static_cast<size_t>(a * count + i);
             f[0] = s.gx[at];
             f[1] = s.gy[at];
             f[2] = s.gz[at];
           },
-          !(smallest > 1e-12),
-          [&](Index k) { return s.sine[static_cast<size_t>(k * count + i)]; },
+          [&](double* c) {
+            c[0] = cx[i];
+            c[1] = cy[i];
+            c[2] = cz[i];
+          },
+          !(smallest > 1e-12), [&](Index k) { return s.sine[static_cast<size_t>(k * count + i)]; },
           [&](Index k, Index& hp, Index& hq) {
             hp = slot(i, pa[k]);
             hq = slot(i, pb[k]);
@@ -1074,8 +1131,6 @@ void ForceKernel::scatterBlock(const Model& model, const Points& position, Point
           m += count;
         }
         angleCosSin(m, s.armP.data(), s.armQ.data(), ax, ay, az, s.cosine.data(), s.sine.data());
-        Eigen::Map<Eigen::ArrayXd> sines(s.sine.data(), m);
-        sines = sines.sqrt();
         const double smallest = angleForces(
             m, s.armP.data(), s.armQ.data(), ax, ay, az, il, s.sine.data(), s.cosine.data(),
             s.rest.data(), s.fx.data(), s.fy.data(), s.fz.data(), s.fx.data() + second,

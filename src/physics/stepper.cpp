@@ -721,8 +721,9 @@ void Stepper::stepDriftFiltered(State& s, const Points& external, std::span<cons
     };
     // kick_ = (T/2) Phi a = (T/2) a - (T^3/24) W a, from the internal forces f; with loads,
     // the total force on the way (lastTotalForce). The accelerations' pass sums them for W
-    // (in the row, while it is in a register). The second kick (last) also finishes the
-    // velocity, v = (v + kick) e^{-GT/2}, in the same pass.
+    // (in the row, while it is in a register). The kick's pass goes on to the velocity: the
+    // first kick's makes v = v e^{-GT/2} + kick and sums it for the drift (one pass fewer than
+    // a velocity pass of its own), the second's finishes it, v = (v + kick) e^{-GT/2}.
     auto filteredKick = [&](const double* f, double* total, bool last) {
       withCase([&](auto loads, auto withGravity, auto withShare) {
 #pragma omp for schedule(static)
@@ -748,8 +749,13 @@ void Stepper::stepDriftFiltered(State& s, const Points& external, std::span<cons
       });
       combine(false, nullptr);
 #pragma omp for schedule(static)
-      for (Index b = 0; b < blocks; ++b)
-        rows.kick(in, forces_.blockBegin(b), forces_.blockEnd(b), acc, kick, v, half, filter, last);
+      for (Index b = 0; b < blocks; ++b) {
+        if (last)
+          rows.lastKick(in, forces_.blockBegin(b), forces_.blockEnd(b), acc, kick, v, half, filter);
+        else
+          rows.firstKick(in, forces_.blockBegin(b), forces_.blockEnd(b), acc, kick, v, half, filter,
+                         blockPartial(b));
+      }
     };
     if (!reuse) {
       if (!startCached) {
@@ -757,12 +763,14 @@ void Stepper::stepDriftFiltered(State& s, const Points& external, std::span<cons
 #pragma omp for schedule(static)
         for (Index b = 0; b < blocks; ++b) forces_.gatherBlock(b, internal_);
       }
+      // First kick and damping.
       filteredKick(internal_.data(), zero ? nullptr : totalForce_.data(), false);
-    }
-    // First kick and damping.
+    } else {
+      // Damping and the first kick, kept from the last step.
 #pragma omp for schedule(static)
-    for (Index b = 0; b < blocks; ++b)
-      rows.velocity(in, forces_.blockBegin(b), forces_.blockEnd(b), v, kick, blockPartial(b));
+      for (Index b = 0; b < blocks; ++b)
+        rows.velocity(in, forces_.blockBegin(b), forces_.blockEnd(b), v, kick, blockPartial(b));
+    }
     combine(true, nullptr);
     // The drift, Psi v by Horner: w1 = a3 v + a4 T^2 W v; w2 = a2 v + T^2 W w1;
     // w1 = a1 v + T^2 W w2; r += T (v + T^2 W w1). B^T M W = 0 (W = (I - P) Omega^2 (I - P),
