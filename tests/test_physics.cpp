@@ -588,6 +588,27 @@ TEST_P(DriftFilterLongRun, ASpinningModelKeepsSpinning) {
   EXPECT_LT(run.maxAngularDrift, 1e-4) << GetParam();
 }
 
+TEST_P(DriftFilterLongRun, EachFitOfPsiKeepsTheEnergyWithinOnePercentAtTheEndOfItsRange) {
+  // Below 0.9 T_max the drift filter's Psi is of lower degree (one product with W fewer per
+  // degree): its fit need only hold up to x = T^2 times Gershgorin's bound on Omega^2, which
+  // on these models is 12 (T / T_max)^2. Each fit at the largest period it serves: the
+  // linear one to x = 1, the quadratic one to x = 4.
+  const Model model = bracedModel(GetParam());
+  const double tMax = criticalPeriod(SystemMatrices(model));
+  for (const auto& [ratio, products] : {std::pair{0.28, 2}, std::pair{0.57, 3}}) {
+    const double dt = ratio * tMax;
+    StepperOptions options;
+    options.threads = 1;
+    ASSERT_EQ(Stepper(model, Scheme::Default, dt, options).driftProducts(), products)
+        << GetParam() << " at " << ratio << " T_max";
+    const RunResult run = simulate(model, Scheme::Default, dt, 60000, perturbed(model, 0.1, 11));
+    EXPECT_TRUE(run.finite);
+    EXPECT_LT(std::abs(run.energyDrift), 0.01) << GetParam() << " at " << ratio << " T_max";
+    EXPECT_LT(run.maxMomentumDrift, 1e-12) << GetParam() << " at " << ratio << " T_max";
+  }
+  EXPECT_EQ(Stepper(model, Scheme::Default, 0.9 * tMax).driftProducts(), 4);
+}
+
 INSTANTIATE_TEST_SUITE_P(PaperModels, DriftFilterLongRun,
                          ::testing::Values("dodecahedron", "torus", "grid"));
 
@@ -901,6 +922,43 @@ TEST(Stepper, TheDriftFiltersLocalUpdateMatchesAFreshBuild) {
   EXPECT_GT((c.position - b.position).cwiseAbs().maxCoeff(), 1e-6);
 }
 
+TEST(Stepper, AnEditThatStiffensTheModelGivesPsiTheFitAFreshBuildWould) {
+  // Psi's fit must hold up to T^2 times Gershgorin's bound on Omega^2, which an edit can
+  // raise or lower: the edited blocks' bounds are remade, so the fit is a fresh build's.
+  Model model = withAngles(makeTorus(200, 60), 0.3, 0.1, 5.0);
+  const double dt = 0.5 * criticalPeriod(SystemMatrices(model));
+  Stepper edited(model, Scheme::Default, dt);
+  ASSERT_EQ(edited.driftProducts(), 3);  // x <= 12 (0.5)^2 = 3: the quadratic fit
+  const std::vector<Index> vertices = {5000, 5001};
+  auto rows = [&]() {
+    std::vector<Index> r = vertices;
+    for (Index v : vertices)
+      for (Index w : model.mesh.vertexNeighbors(v)) r.push_back(w);
+    std::sort(r.begin(), r.end());
+    r.erase(std::unique(r.begin(), r.end()), r.end());
+    return r;
+  };
+  // (On this fine torus Omega^2 is mostly the angle springs' share, 2 kappa_theta / l^2 per
+  // angle on each arm.)
+  for (const double factor : {4.0, 0.25}) {
+    for (Index v : vertices) model.properties.angularStiffness[v] *= factor;
+    edited.propertiesChanged(rows());
+    const Stepper fresh(model, Scheme::Default, dt);
+    EXPECT_EQ(edited.driftProducts(), fresh.driftProducts()) << "angular stiffness x " << factor;
+    EXPECT_EQ(edited.driftProducts(), factor > 1.0 ? 4 : 3) << "angular stiffness x " << factor;
+    State a = perturbed(model, 0.05, 4), b = a;
+    Stepper remade(model, Scheme::Default, dt);
+    const Points external = Points::Zero(model.mesh.numVertices(), 3);
+    for (int k = 0; k < 5; ++k) {
+      edited.step(a, external);
+      remade.step(b, external);
+    }
+    EXPECT_LT((a.position - b.position).cwiseAbs().maxCoeff(),
+              1e-12 * a.position.cwiseAbs().maxCoeff())
+        << "angular stiffness x " << factor;
+  }
+}
+
 TEST(Stepper, ANewPeriodStepsAsAStepperBuiltForIt) {
   // Split cycles (Simulation) change the default scheme's period in place: the steps that
   // follow are a stepper built for the new period, bit for bit, damping and drift filter
@@ -926,6 +984,9 @@ TEST(Stepper, ANewPeriodStepsAsAStepperBuiltForIt) {
   EXPECT_TRUE(a.position == b.position);
   EXPECT_TRUE(a.velocity == b.velocity);
   EXPECT_EQ(changed.period(), dt / 4);
+  // Psi's fit follows the period: the cubic at 0.9 T_max, the linear one at 0.225 T_max.
+  EXPECT_EQ(changed.driftProducts(), 2);
+  EXPECT_EQ(Stepper(model, Scheme::Default, dt).driftProducts(), 4);
   Stepper paper(model, Scheme::Paper, dt);
   EXPECT_THROW(paper.setPeriod(dt / 2), InvalidInputError);
   EXPECT_THROW(changed.setPeriod(0.0), InvalidInputError);

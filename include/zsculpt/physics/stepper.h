@@ -135,6 +135,9 @@ class Stepper {
   /// position moves by (T^2/2) sigma_l / mu_l times it per unit force held on vertex l), N long.
   /// Not for the per-step path: it allocates.
   [[nodiscard]] VectorX filteredPositionColumn(Index l) const;
+  /// Default scheme with filtersDrift(): the products with W the drift takes per step, the
+  /// degree of Psi in T^2 W (2 to 4: the lowest whose fit holds at this period).
+  [[nodiscard]] int driftProducts() const { return driftDegree_; }
   /// Threads the last step used.
   [[nodiscard]] int threads() const { return threads_; }
   /// Bytes held by the stepper (matrices, caches, work buffers), for the memory report.
@@ -165,6 +168,10 @@ class Stepper {
   // Default scheme: the affine fields' basis and what the filters need of it, all of it
   // (empty span) or the rows of these vertices and their one-ring.
   void setUpAffine(std::span<const Index> vertices);
+  // Default scheme with the drift filter: Gershgorin's bound on Omega^2's spectrum per block
+  // (all blocks, or those of these vertices), then Psi's fit for the period (driftA_).
+  void boundSpectrum(std::span<const Index> vertices);
+  void chooseDriftFit();
 
   const Model& model_;
   Scheme scheme_;
@@ -225,6 +232,11 @@ class Stepper {
   std::array<double, 24> affineCoefficient_{};
   std::array<double, 12> velocityCoefficient_{};  // c of the velocity, which Psi's terms scale
   std::vector<Index> affineRows_;
+  // Per block the largest sum_j |Omega^2_ij| of its rows; Psi = I + sum_{k=1..D} a_k (T^2 W)^k
+  // with a_k at driftA_[k], D = driftDegree_.
+  std::vector<double> spectrumBound_;
+  std::array<double, 5> driftA_{};
+  int driftDegree_ = 4;
 
   // Exact scheme: Omega^2's symmetric form = Q diag(w^2) Q^T; per-mode 2 x 3 propagators.
   Eigen::MatrixXd modes_;
