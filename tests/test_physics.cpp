@@ -8,6 +8,13 @@
 #include <numbers>
 #include <vector>
 
+// The tests are built without -fopenmp but link libgomp through the physics library: its
+// runtime calls set the thread count for the OpenMP loops inside it.
+#if __has_include(<omp.h>)
+#include <omp.h>
+#define ZSCULPT_TEST_OPENMP 1
+#endif
+
 #include "zsculpt/core/errors.h"
 #include "zsculpt/mesh/builtin.h"
 #include "zsculpt/physics/diagnostics.h"
@@ -256,6 +263,58 @@ TEST(Forces, InternalForcesOfAModelHaveZeroNetForceAndTorque) {
   EXPECT_LT(moment.norm(), 1e-10);
   EXPECT_NEAR(e.total(), potentialEnergy(model, x).radial + potentialEnergy(model, x).angular,
               1e-12);
+}
+
+TEST(Forces, PotentialEnergyIsItsTermsSumOnAnyThreadCount) {
+  // Summed in fixed parts on all threads (every cycle's diagnostics take it): the same bits
+  // on one thread and on three, and the sum of its terms as one serial loop adds them.
+  UniformProperties u;
+  u.angularStiffness = 0.3;
+  u.gravity = Vec3(0.0, 0.0, -9.81);
+  const Model model = Model::fromMesh(makeTorus(200, 100), u);
+  Points x = model.mesh.positions();
+  for (Index i = 0; i < x.rows(); ++i)
+    x.row(i) += 0.01 * Eigen::RowVector3d(std::sin(1.0 * i), std::cos(2.0 * i), std::sin(3.0 * i));
+  PotentialEnergy serial;
+  const PhysicalProperties& p = model.properties;
+  for (Index e = 0; e < model.mesh.numEdges(); ++e) {
+    const auto [i, j] = model.mesh.edge(e);
+    serial.radial +=
+        radialSpringEnergy((x.row(i) - x.row(j)).norm(),
+                           edgeStiffness(p.stiffness[i], p.stiffness[j]), p.restLength[e]);
+  }
+  for (size_t k = 0; k < model.angles.angles.size(); ++k) {
+    const auto [c, a, b] = model.angles.angles[k];
+    const double excess =
+        angleAt(x.row(c), x.row(a), x.row(b)) - p.restAngle[static_cast<Index>(k)];
+    serial.angular += 0.5 * p.angularStiffness[c] * excess * excess;
+  }
+  double gravityScale = 0.0;  // its terms cancel: a centred torus has almost none in all
+  for (Index i = 0; i < x.rows(); ++i) {
+    const double term = p.mass[i] * p.gravity.dot(x.row(i).transpose());
+    serial.gravity -= term;
+    gravityScale += std::abs(term);
+  }
+  std::vector<PotentialEnergy> sums;
+  for (int threads : {1, 3}) {
+#ifdef ZSCULPT_TEST_OPENMP
+    const int before = omp_get_max_threads();
+    omp_set_num_threads(threads);
+#else
+    (void)threads;
+#endif
+    sums.push_back(potentialEnergy(model, x));
+#ifdef ZSCULPT_TEST_OPENMP
+    omp_set_num_threads(before);
+#endif
+  }
+  EXPECT_EQ(sums[0].radial, sums[1].radial);
+  EXPECT_EQ(sums[0].angular, sums[1].angular);
+  EXPECT_EQ(sums[0].gravity, sums[1].gravity);
+  EXPECT_GT(sums[0].angular, 0.0);
+  EXPECT_NEAR(sums[0].radial, serial.radial, 1e-12 * std::abs(serial.radial));
+  EXPECT_NEAR(sums[0].angular, serial.angular, 1e-12 * std::abs(serial.angular));
+  EXPECT_NEAR(sums[0].gravity, serial.gravity, 1e-12 * gravityScale);
 }
 
 TEST(Diagnostics, APokeIsAGaussianBumpAlongItsDirectionWithZeroMomentum) {

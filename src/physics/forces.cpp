@@ -2,8 +2,10 @@
 
 #include <Eigen/Eigenvalues>
 #include <algorithm>
+#include <array>
 #include <bit>
 #include <cmath>
+#include <cstdint>
 #include <numbers>
 
 #ifdef _OPENMP
@@ -167,23 +169,51 @@ double accumulateGravity(const PhysicalProperties& properties, const Points& pos
 }
 
 PotentialEnergy potentialEnergy(const Model& model, const Points& position) {
-  PotentialEnergy energy;
+  // Every cycle's diagnostics call this, and on large models a serial pass (a libm atan2 per
+  // angle spring) cost more than the step itself (docs/performance.md). So each sum is taken
+  // in kParts fixed contiguous parts, the parts on all threads, then added in part order:
+  // the same bits whatever the thread count.
+  constexpr int kParts = 64;
   const Mesh& mesh = model.mesh;
   const PhysicalProperties& p = model.properties;
-  for (Index e = 0; e < mesh.numEdges(); ++e) {
-    const auto [i, j] = mesh.edge(e);
-    const double kappa = edgeStiffness(p.stiffness[i], p.stiffness[j]);
-    energy.radial += radialSpringEnergy((position.row(i) - position.row(j)).norm(), kappa, p.restLength[e]);
-  }
   const auto& angles = model.angles.angles;
-  for (size_t k = 0; k < angles.size(); ++k) {
-    const auto [c, a, b] = angles[k];
-    const double excess = angleAt(position.row(c), position.row(a), position.row(b)) -
-                          p.restAngle[static_cast<Index>(k)];
-    energy.angular += 0.5 * p.angularStiffness[c] * excess * excess;
+  const std::int64_t edges = mesh.numEdges(), springs = static_cast<std::int64_t>(angles.size()),
+                     vertices = position.rows();
+  std::array<double, kParts> radial{}, angular{}, gravity{};
+  auto begin = [](std::int64_t count, int part) {
+    return static_cast<Index>(count * part / kParts);
+  };
+#ifdef _OPENMP
+  const bool parallel = edges + springs > 50000 && omp_in_parallel() == 0;
+#endif
+#pragma omp parallel for schedule(static) if (parallel)
+  for (int part = 0; part < kParts; ++part) {
+    double sum = 0.0;
+    for (Index e = begin(edges, part); e < begin(edges, part + 1); ++e) {
+      const auto [i, j] = mesh.edge(e);
+      const double kappa = edgeStiffness(p.stiffness[i], p.stiffness[j]);
+      sum += radialSpringEnergy((position.row(i) - position.row(j)).norm(), kappa, p.restLength[e]);
+    }
+    radial[static_cast<size_t>(part)] = sum;
+    sum = 0.0;
+    for (Index k = begin(springs, part); k < begin(springs, part + 1); ++k) {
+      const auto [c, a, b] = angles[static_cast<size_t>(k)];
+      const double excess =
+          angleAt(position.row(c), position.row(a), position.row(b)) - p.restAngle[k];
+      sum += 0.5 * p.angularStiffness[c] * excess * excess;
+    }
+    angular[static_cast<size_t>(part)] = sum;
+    sum = 0.0;
+    for (Index i = begin(vertices, part); i < begin(vertices, part + 1); ++i)
+      sum -= p.mass[i] * p.gravity.dot(position.row(i).transpose());
+    gravity[static_cast<size_t>(part)] = sum;
   }
-  for (Index i = 0; i < position.rows(); ++i)
-    energy.gravity -= p.mass[i] * p.gravity.dot(position.row(i).transpose());
+  PotentialEnergy energy;
+  for (int part = 0; part < kParts; ++part) {
+    energy.radial += radial[static_cast<size_t>(part)];
+    energy.angular += angular[static_cast<size_t>(part)];
+    energy.gravity += gravity[static_cast<size_t>(part)];
+  }
   return energy;
 }
 
