@@ -732,6 +732,21 @@ double relativeDifference(const Points& a, const Points& b) {
 
 }  // namespace
 
+TEST(ForceKernel, BlockOfFindsEachVertexsBlock) {
+  for (const Index side : {4, 40, 200}) {  // one block, two, several
+    const Model model = withAngles(makeTorus(side, side), 0.3);
+    const ForceKernel kernel(model, 2);
+    std::vector<Index> seen;
+    for (Index v = 0; v < model.mesh.numVertices(); ++v) {
+      const Index b = kernel.blockOf(v);
+      ASSERT_LE(kernel.blockBegin(b), v) << side;
+      ASSERT_LT(v, kernel.blockEnd(b)) << side;
+      if (seen.empty() || seen.back() != b) seen.push_back(b);
+    }
+    EXPECT_EQ(static_cast<Index>(seen.size()), kernel.numBlocks()) << side;
+  }
+}
+
 TEST(ForceKernel, WithoutAngleSpringsEqualsTheReferenceBitForBit) {
   // Same formula and the same per-vertex order of sums as accumulateInternalForces, so
   // radial-only models step exactly as before the kernel existed.

@@ -503,20 +503,13 @@ void Stepper::boundSpectrum(std::span<const Index> vertices) {
   if (vertices.empty()) {
     for (Index b = 0; b < blocks; ++b) bound(b);
   } else {
-    std::vector<std::uint8_t> touched(static_cast<size_t>(blocks), 0);
+    // Edits name their rows in order, so each block comes once; a repeat only remakes it.
+    Index last = -1;
     for (Index v : vertices) {
-      Index low = 0, high = blocks - 1;  // the block of v: the last that begins at or before it
-      while (low < high) {
-        const Index middle = (low + high + 1) / 2;
-        if (forces_.blockBegin(middle) <= v)
-          low = middle;
-        else
-          high = middle - 1;
-      }
-      touched[static_cast<size_t>(low)] = 1;
+      const Index b = forces_.blockOf(v);
+      if (b != last) bound(b);
+      last = b;
     }
-    for (Index b = 0; b < blocks; ++b)
-      if (touched[static_cast<size_t>(b)]) bound(b);
   }
   chooseDriftFit();
 }

@@ -5,6 +5,7 @@
 // Every internal force here is minus the gradient of an energy, so net force and net
 // torque of internal forces vanish exactly (up to rounding) and energy is well defined.
 
+#include <algorithm>
 #include <cstdint>
 #include <span>
 #include <vector>
@@ -120,6 +121,11 @@ class ForceKernel {
   [[nodiscard]] Index uniformVertices() const;
   [[nodiscard]] Index blockBegin(Index block) const { return blockStart_[block]; }
   [[nodiscard]] Index blockEnd(Index block) const { return blockStart_[block + 1]; }
+  /// The block holding vertex v (0 <= v < the vertex count).
+  [[nodiscard]] Index blockOf(Index v) const {
+    return static_cast<Index>(std::upper_bound(blockStart_.begin() + 1, blockStart_.end() - 1, v) -
+                              (blockStart_.begin() + 1));
+  }
   [[nodiscard]] int maxThreads() const { return static_cast<int>(scratch_.size()); }
   /// Bytes held (caches, plan and work space), for the memory report.
   [[nodiscard]] size_t bytes() const;
