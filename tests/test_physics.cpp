@@ -6,6 +6,7 @@
 #include <algorithm>
 #include <cmath>
 #include <numbers>
+#include <random>
 #include <vector>
 
 // The tests are built without -fopenmp but link libgomp through the physics library: its
@@ -216,6 +217,40 @@ TEST(Forces, AngleSpringStaysFiniteAtZeroAndPi) {
   // At rest angle pi, a straight configuration carries no force.
   angleSpringForce(Vec3::Zero(), Vec3(1, 0, 0), Vec3(-1, 0, 0), 2.0, std::numbers::pi, fc, fa, fb);
   EXPECT_LT(fa.norm() + fb.norm() + fc.norm(), 1e-12);
+}
+
+TEST(Forces, AngleAtIsAtan2AtAnyScaleAndTheRestShapeHasNoEnergy) {
+  // angleAt is the branch-free atan2 that potentialEnergy vectorises (forces.cpp): within a
+  // few ulps of libm's at any arm length, near 0 and near pi; exact at 0 and pi; 0 for an arm
+  // of no length, as atan2(0, 0).
+  std::mt19937_64 rng(5);
+  std::uniform_real_distribution<double> unit(-1.0, 1.0);
+  double worst = 0.0;
+  for (const double scale : {1e-70, 1e-8, 1.0, 1e8, 1e70}) {
+    for (int k = 0; k < 3000; ++k) {
+      const Vec3 u = scale * Vec3(unit(rng), unit(rng), unit(rng));
+      Vec3 w = scale * Vec3(unit(rng), unit(rng), unit(rng));
+      if (k % 3 == 1) w = 3.0 * u + 1e-9 * w;   // near 0
+      if (k % 3 == 2) w = -2.0 * u + 1e-9 * w;  // near pi
+      const double expected = std::atan2(u.cross(w).norm(), u.dot(w));
+      const double error = std::abs(angleAt(Vec3::Zero(), u, w) - expected) / expected;
+      worst = std::max(worst, error);
+      ASSERT_LT(error, 1e-15) << "scale " << scale << ", pair " << k;
+    }
+  }
+  EXPECT_GT(worst, 0.0);  // not libm's atan2 itself
+  EXPECT_EQ(angleAt(Vec3::Zero(), Vec3(1, 0, 0), Vec3(2, 0, 0)), 0.0);
+  EXPECT_EQ(angleAt(Vec3::Zero(), Vec3(1, 0, 0), Vec3(-2, 0, 0)), std::numbers::pi);
+  EXPECT_EQ(angleAt(Vec3::Zero(), Vec3(0, 1, 0), Vec3(3, 0, 0)), std::numbers::pi / 2);
+  EXPECT_EQ(angleAt(Vec3::Zero(), Vec3::Zero(), Vec3(1, 0, 0)), 0.0);
+  // The rest angles and lengths a model is made with are the potential energy's at the rest
+  // shape, term by term: the rest shape stores nothing.
+  for (Mesh mesh : {makeTorus(30, 20), makeGrid(12), makeFins(), makeLattice(4), makeDodecahedron()}) {
+    const Model model = withAngles(std::move(mesh), 0.7);
+    const PotentialEnergy e = potentialEnergy(model, model.mesh.positions());
+    EXPECT_EQ(e.radial, 0.0);
+    EXPECT_EQ(e.angular, 0.0);
+  }
 }
 
 TEST(Forces, TorqueBecomesForcesWithZeroNetForceAndTheGivenTorque) {

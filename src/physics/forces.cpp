@@ -14,10 +14,152 @@
 
 namespace zsculpt {
 
+namespace {
+
+constexpr double kPi = std::numbers::pi;
+constexpr double kHalfPi = std::numbers::pi / 2;
+constexpr double kQuarterPi = std::numbers::pi / 4;
+// pi/2 - kHalfPi: the low bits of pi/2 (Cephes' MOREBITS).
+constexpr double kMoreBits = 6.123233995736765886130e-17;
+
+// The angles here come from a branch-free atan2 (below) so that a batch of them vectorises
+// (glibc's atan2 is a call the compiler cannot); it is accurate near 0 and pi, like atan2.
+// cond ? a : b on the bits, with both operands computed: with trapping math the compiler
+// neither speculates a floating-point operation out of a branch nor may it sink one into a
+// branch here, so the loops below have no control flow and vectorise.
+inline double select(bool cond, double a, double b) {
+  const std::uint64_t mask = std::uint64_t{0} - static_cast<std::uint64_t>(cond);
+  return std::bit_cast<double>((std::bit_cast<std::uint64_t>(a) & mask) |
+                               (std::bit_cast<std::uint64_t>(b) & ~mask));
+}
+
+// The kernels below are built twice: for AVX2 (4 doubles at a time; chosen at load time
+// where the processor has it) and for the x86-64 baseline. Neither contracts to FMA and both
+// do the same operations in the same order, so they round alike: the forces do not depend
+// on the machine's choice. forces.cpp is built without errno for the math functions
+// (CMakeLists.txt), so std::sqrt in a loop vectorises; other paths take theirs in a pass of
+// Eigen's packet sqrt (the same correctly rounded result).
+// Sanitized builds (CMakeLists.txt) define ZSCULPT_NO_TARGET_CLONES: no ifunc resolvers.
+#ifdef ZSCULPT_NO_TARGET_CLONES
+#define ZSCULPT_KERNEL
+#else
+#define ZSCULPT_KERNEL __attribute__((target_clones("avx2", "default")))
+#endif
+
+// atan2(s, c) for s >= 0 (the angle between two arms from |u x w| and u . w) in parts, so
+// that angleBeta can share its one division with 1 / sin: the argument reduced to
+// |num / den| <= tan(pi/8) (num / den = min / max of |s|, |c|, or (min - max) / (min + max)
+// beyond tan(pi/8)), Cephes' rational atan (S. Moshier, relative error 2e-16 on |x| <= 0.66)
+// written homogeneously in (num, den): atan(num / den) = num (qt + n2 pt) / (den qt), pt and
+// qt the homogeneous forms of Cephes' P(z) and Q(z) at z = n2 / d2. den^10 must neither
+// under- nor overflow: callers pass max(|s|, |c|) near 1.
+inline void atanParts(double s, double c, bool& sinLarger, bool& reduce, double& num, double& den,
+                      double& n2, double& pt, double& qt) {
+  constexpr double p0 = -8.750608600031904122785e-1, p1 = -1.615753718733365076637e1,
+                   p2 = -7.500855792314704667340e1, p3 = -1.228866684490136173410e2,
+                   p4 = -6.485021904942025371773e1;
+  constexpr double q0 = 2.485846490142306297962e1, q1 = 1.650270098316988542046e2,
+                   q2 = 4.328810604912902668951e2, q3 = 4.853903996359136964868e2,
+                   q4 = 1.945506571482613964425e2;
+  const double ac = std::abs(c);
+  sinLarger = s > ac;
+  const double mx = select(sinLarger, s, ac);
+  const double mn = select(sinLarger, ac, s);
+  reduce = mn > 0.41421356237309504880 * mx;
+  num = select(reduce, mn - mx, mn);
+  den = select(reduce, mn + mx, mx);
+  n2 = num * num;
+  const double d2 = den * den, d4 = d2 * d2, d6 = d4 * d2, d8 = d4 * d4;
+  pt = (((p0 * n2 + p1 * d2) * n2 + p2 * d4) * n2 + p3 * d6) * n2 + p4 * d8;
+  qt = ((((n2 + q0 * d2) * n2 + q1 * d4) * n2 + q2 * d6) * n2 + q3 * d8) * n2 + q4 * d8 * d2;
+}
+
+// The angle in [0, pi] from t0 = atan(num / den) and atanParts' choices.
+inline double angleFromAtan(double t0, bool reduce, bool sinLarger, double c) {
+  const double t1 = select(reduce, kQuarterPi + (t0 + 0.5 * kMoreBits), t0);
+  const double t2 = select(sinLarger, (kHalfPi - t1) + kMoreBits, t1);
+  return select(c < 0.0, (kPi - t2) + 2.0 * kMoreBits, t2);
+}
+
+// atan2(s, c) for s >= 0, scaled first so that max(s, |c|) is 1 (atanParts' condition for
+// arms of any length); 0 when both are 0, as atan2(0, 0).
+inline double angleFromSinCos(double s, double c) {
+  const double scale = std::max(s, std::abs(c));
+  const bool some = scale > 0.0;
+  const double safe = select(some, scale, 1.0);
+  const double sn = s / safe, cn = c / safe;
+  bool sinLarger, reduce;
+  double num, den, n2, pt, qt;
+  atanParts(sn, cn, sinLarger, reduce, num, den, n2, pt, qt);
+  const double t0 = num * (qt + n2 * pt) / select(some, den * qt, 1.0);
+  return angleFromAtan(t0, reduce, sinLarger, cn);
+}
+
+// radialSpringEnergy: kappa/2 (d - lambda)^2, continued below d = lambda/2 by
+// kappa lambda^2/4 - kappa d^2/2 (both computed, one selected, so that a batch vectorises).
+inline double radialEnergy(double length, double kappa, double restLength) {
+  const double stretch = length - restLength;
+  const double stretched = 0.5 * kappa * stretch * stretch;
+  const double crushed = 0.25 * kappa * restLength * restLength - 0.5 * kappa * length * length;
+  return select(length >= 0.5 * restLength, stretched, crushed);
+}
+
+// |u x w|^2 and u . w of two arms, as angleAt and potentialEnergy take them (one expression,
+// and a correctly rounded square root after it, so that a rest angle and the energy's angle
+// at the rest shape are the same bits).
+inline void armsSinCos(double ux, double uy, double uz, double wx, double wy, double wz,
+                       double& sineSquared, double& c) {
+  const double cx = uy * wz - uz * wy, cy = uz * wx - ux * wz, cz = ux * wy - uy * wx;
+  sineSquared = cx * cx + cy * cy + cz * cz;
+  c = ux * wx + uy * wy + uz * wz;
+}
+
+// beta = (theta - theta_0) / sin(theta), theta = atan2(sin, cos) in [0, pi]; zero when the
+// sine is 1e-12 or less (those angles are the caller's: angleSpringForce handles them).
+// atan x and 1 / sin with it cost one division (atanParts). The arms are unit vectors, so
+// max(|sin|, |cos|) >= 1/sqrt(2) and nothing under- or overflows.
+inline double angleBeta(double s, double c, double rest) {
+  bool sinLarger, reduce;
+  double num, den, n2, pt, qt;
+  atanParts(s, c, sinLarger, reduce, num, den, n2, pt, qt);
+  const bool regular = s > 1e-12;
+  const double safeSine = select(regular, s, 1.0);
+  const double denominator = select(regular, den * qt, 1.0);
+  const double inv = 1.0 / (denominator * safeSine);
+  const double t0 = num * (qt + n2 * pt) * safeSine * inv;
+  const double theta = angleFromAtan(t0, reduce, sinLarger, c);
+  return select(regular, (theta - rest) * (denominator * inv), 0.0);
+}
+
+// potentialEnergy's terms in batches, vectorised (square roots, atan2s), gathered by the
+// caller, which adds them in order so that every machine sums alike.
+// Angle springs, kappa_theta/2 (theta - theta_0)^2, from |u x w|^2 and u . w (armsSinCos).
+ZSCULPT_KERNEL void angleEnergies(Index m, const double* __restrict sineSquared,
+                                  const double* __restrict cosine, const double* __restrict kappa,
+                                  const double* __restrict rest, double* __restrict energy) {
+#pragma omp simd
+  for (Index k = 0; k < m; ++k) {
+    const double excess = angleFromSinCos(std::sqrt(sineSquared[k]), cosine[k]) - rest[k];
+    energy[k] = 0.5 * kappa[k] * excess * excess;
+  }
+}
+
+// Radial springs from their squared lengths.
+ZSCULPT_KERNEL void radialEnergies(Index m, const double* __restrict lengthSquared,
+                                   const double* __restrict kappa, const double* __restrict rest,
+                                   double* __restrict energy) {
+#pragma omp simd
+  for (Index k = 0; k < m; ++k)
+    energy[k] = radialEnergy(std::sqrt(lengthSquared[k]), kappa[k], rest[k]);
+}
+
+}  // namespace
+
 double angleAt(const Vec3& centre, const Vec3& a, const Vec3& b) {
-  const Vec3 u = a - centre;
-  const Vec3 w = b - centre;
-  return std::atan2(u.cross(w).norm(), u.dot(w));
+  double s2, c;
+  armsSinCos(a.x() - centre.x(), a.y() - centre.y(), a.z() - centre.z(), b.x() - centre.x(),
+             b.y() - centre.y(), b.z() - centre.z(), s2, c);
+  return angleFromSinCos(std::sqrt(s2), c);
 }
 
 double radialSpringForce(const Vec3& ri, const Vec3& rj, double kappa, double restLength,
@@ -47,11 +189,7 @@ double radialSpringForce(const Vec3& ri, const Vec3& rj, double kappa, double re
 }
 
 double radialSpringEnergy(double length, double kappa, double restLength) {
-  if (length >= 0.5 * restLength) {
-    const double stretch = length - restLength;
-    return 0.5 * kappa * stretch * stretch;
-  }
-  return 0.25 * kappa * restLength * restLength - 0.5 * kappa * length * length;
+  return radialEnergy(length, kappa, restLength);
 }
 
 namespace {
@@ -171,8 +309,9 @@ double accumulateGravity(const PhysicalProperties& properties, const Points& pos
 PotentialEnergy potentialEnergy(const Model& model, const Points& position) {
   // Every cycle's diagnostics call this, and on large models a serial pass (a libm atan2 per
   // angle spring) cost more than the step itself (docs/performance.md). So each sum is taken
-  // in kParts fixed contiguous parts, the parts on all threads, then added in part order:
-  // the same bits whatever the thread count.
+  // in kParts fixed contiguous parts, the parts on all threads, then added in part order
+  // (the same bits whatever the thread count), and within a part in batches whose square
+  // roots and atan2s vectorise.
   constexpr int kParts = 64;
   const Mesh& mesh = model.mesh;
   const PhysicalProperties& p = model.properties;
@@ -188,19 +327,37 @@ PotentialEnergy potentialEnergy(const Model& model, const Points& position) {
 #endif
 #pragma omp parallel for schedule(static) if (parallel)
   for (int part = 0; part < kParts; ++part) {
+    // In batches: ends gathered, then the square roots, atan2s and energies vectorised
+    // (radialEnergies, angleEnergies), then added in order, term by term.
+    constexpr Index kBatch = 64;
+    double squared[kBatch], cosine[kBatch], kappa[kBatch], term[kBatch];
+    const double* r = position.data();
     double sum = 0.0;
-    for (Index e = begin(edges, part); e < begin(edges, part + 1); ++e) {
-      const auto [i, j] = mesh.edge(e);
-      const double kappa = edgeStiffness(p.stiffness[i], p.stiffness[j]);
-      sum += radialSpringEnergy((position.row(i) - position.row(j)).norm(), kappa, p.restLength[e]);
+    for (Index e0 = begin(edges, part); e0 < begin(edges, part + 1); e0 += kBatch) {
+      const Index m = std::min(kBatch, begin(edges, part + 1) - e0);
+      for (Index k = 0; k < m; ++k) {
+        const auto [i, j] = mesh.edge(e0 + k);
+        // Eigen's expression, as the rest lengths are made (Vec3::norm is its square root).
+        squared[k] = (position.row(i) - position.row(j)).squaredNorm();
+        kappa[k] = edgeStiffness(p.stiffness[i], p.stiffness[j]);
+      }
+      radialEnergies(m, squared, kappa, p.restLength.data() + e0, term);
+      for (Index k = 0; k < m; ++k) sum += term[k];
     }
     radial[static_cast<size_t>(part)] = sum;
     sum = 0.0;
-    for (Index k = begin(springs, part); k < begin(springs, part + 1); ++k) {
-      const auto [c, a, b] = angles[static_cast<size_t>(k)];
-      const double excess =
-          angleAt(position.row(c), position.row(a), position.row(b)) - p.restAngle[k];
-      sum += 0.5 * p.angularStiffness[c] * excess * excess;
+    for (Index k0 = begin(springs, part); k0 < begin(springs, part + 1); k0 += kBatch) {
+      const Index m = std::min(kBatch, begin(springs, part + 1) - k0);
+      for (Index j = 0; j < m; ++j) {
+        const auto [c, a, b] = angles[static_cast<size_t>(k0 + j)];
+        const double *rc = r + 3 * static_cast<size_t>(c), *ra = r + 3 * static_cast<size_t>(a),
+                     *rb = r + 3 * static_cast<size_t>(b);
+        armsSinCos(ra[0] - rc[0], ra[1] - rc[1], ra[2] - rc[2], rb[0] - rc[0], rb[1] - rc[1],
+                   rb[2] - rc[2], squared[j], cosine[j]);
+        kappa[j] = p.angularStiffness[c];
+      }
+      angleEnergies(m, squared, cosine, kappa, p.restAngle.data() + k0, term);
+      for (Index j = 0; j < m; ++j) sum += term[j];
     }
     angular[static_cast<size_t>(part)] = sum;
     sum = 0.0;
@@ -255,38 +412,6 @@ constexpr Index kMinRun = 8;
 // (seven arrays of about twice as many doubles) stay in the core's L2 cache.
 constexpr Index kGroupVertices = 1024;
 
-constexpr double kPi = std::numbers::pi;
-constexpr double kHalfPi = std::numbers::pi / 2;
-constexpr double kQuarterPi = std::numbers::pi / 4;
-// pi/2 - kHalfPi: the low bits of pi/2 (Cephes' MOREBITS).
-constexpr double kMoreBits = 6.123233995736765886130e-17;
-
-// atan2(s, c) for s >= 0, as the angle between two arms from |u x w| and u . w: branch-free
-// so that a batch of them vectorises (glibc's atan2 is a call the compiler cannot).
-// Reduced to |x| <= tan(pi/8), then Cephes' rational approximation of atan (S. Moshier;
-// relative error about 2e-16 on |x| <= 0.66). Accurate near 0 and pi, like atan2.
-// cond ? a : b on the bits, with both operands computed: with trapping math the compiler
-// neither speculates a floating-point operation out of a branch nor may it sink one into a
-// branch here, so the loops below have no control flow and vectorise.
-inline double select(bool cond, double a, double b) {
-  const std::uint64_t mask = std::uint64_t{0} - static_cast<std::uint64_t>(cond);
-  return std::bit_cast<double>((std::bit_cast<std::uint64_t>(a) & mask) |
-                               (std::bit_cast<std::uint64_t>(b) & ~mask));
-}
-
-// The kernels below are built twice: for AVX2 (4 doubles at a time; chosen at load time
-// where the processor has it) and for the x86-64 baseline. Neither contracts to FMA and both
-// do the same operations in the same order, so they round alike: the forces do not depend
-// on the machine's choice. forces.cpp is built without errno for the math functions
-// (CMakeLists.txt), so std::sqrt in a loop vectorises; other paths take theirs in a pass of
-// Eigen's packet sqrt (the same correctly rounded result).
-// Sanitized builds (CMakeLists.txt) define ZSCULPT_NO_TARGET_CLONES: no ifunc resolvers.
-#ifdef ZSCULPT_NO_TARGET_CLONES
-#define ZSCULPT_KERNEL
-#else
-#define ZSCULPT_KERNEL __attribute__((target_clones("avx2", "default")))
-#endif
-
 // Radial springs and arms of one chunk, per half-edge j (from v to w, edge e), after
 // squaredLength[j] = |r_w - r_v|^2 was turned into the length: the force on v,
 // kappa (l - lambda) / l (r_w - r_v), which is radialSpringForce's force on v rounding for
@@ -318,45 +443,6 @@ ZSCULPT_KERNEL void radialBatch(Index count, const Index* __restrict edge,
     az[j] = uz * inv;
     il[j] = inv;
   }
-}
-
-// beta = (theta - theta_0) / sin(theta), theta = atan2(sin, cos) in [0, pi]; zero when the
-// sine is 1e-12 or less (those angles are the caller's: angleSpringForce handles them).
-//
-// atan2 without a call: reduced to |x| <= tan(pi/8) (x = min / max of |sin|, |cos|, or
-// (min - max) / (min + max) beyond tan(pi/8)), then Cephes' rational atan (S. Moshier,
-// relative error 2e-16 on |x| <= 0.66) written homogeneously in (num, den) so that atan x,
-// and 1 / sin with it, cost one division. The arms are unit vectors, so max(|sin|, |cos|)
-// >= 1/sqrt(2) and nothing under- or overflows.
-inline double angleBeta(double s, double c, double rest) {
-  constexpr double p0 = -8.750608600031904122785e-1, p1 = -1.615753718733365076637e1,
-                   p2 = -7.500855792314704667340e1, p3 = -1.228866684490136173410e2,
-                   p4 = -6.485021904942025371773e1;
-  constexpr double q0 = 2.485846490142306297962e1, q1 = 1.650270098316988542046e2,
-                   q2 = 4.328810604912902668951e2, q3 = 4.853903996359136964868e2,
-                   q4 = 1.945506571482613964425e2;
-  const double ac = std::abs(c);
-  const bool sinLarger = s > ac;
-  const double mx = select(sinLarger, s, ac);
-  const double mn = select(sinLarger, ac, s);
-  const bool reduce = mn > 0.41421356237309504880 * mx;
-  const double num = select(reduce, mn - mx, mn);
-  const double den = select(reduce, mn + mx, mx);
-  // atan(num / den) = num (Q~ + n2 P~) / (den Q~), P~ and Q~ the homogeneous forms of
-  // Cephes' P(z) and Q(z) at z = n2 / d2.
-  const double n2 = num * num, d2 = den * den, d4 = d2 * d2, d6 = d4 * d2, d8 = d4 * d4;
-  const double pt = (((p0 * n2 + p1 * d2) * n2 + p2 * d4) * n2 + p3 * d6) * n2 + p4 * d8;
-  const double qt =
-      ((((n2 + q0 * d2) * n2 + q1 * d4) * n2 + q2 * d6) * n2 + q3 * d8) * n2 + q4 * d8 * d2;
-  const bool regular = s > 1e-12;
-  const double safeSine = select(regular, s, 1.0);
-  const double denominator = select(regular, den * qt, 1.0);
-  const double inv = 1.0 / (denominator * safeSine);
-  const double t0 = num * (qt + n2 * pt) * safeSine * inv;
-  const double t1 = select(reduce, kQuarterPi + (t0 + 0.5 * kMoreBits), t0);
-  const double t2 = select(sinLarger, (kHalfPi - t1) + kMoreBits, t1);
-  const double theta = select(c < 0.0, (kPi - t2) + 2.0 * kMoreBits, t2);
-  return select(regular, (theta - rest) * (denominator * inv), 0.0);
 }
 
 // The angle springs, kappa_theta left out (section 5.2): the forces on the ends of unit arms

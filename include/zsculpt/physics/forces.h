@@ -16,7 +16,10 @@
 namespace zsculpt {
 
 /// The angle at `centre` between the arms to `a` and `b`, in [0, pi], computed as
-/// atan2(|u x w|, u . w): accurate near 0 and pi, unlike acos.
+/// atan2(|u x w|, u . w): accurate near 0 and pi, unlike acos. The atan2 is forces.cpp's
+/// branch-free one (within about 2 ulps of libm's at any arm length; 0 for an arm of no
+/// length), the one potentialEnergy takes in vectorised batches, so that rest angles made
+/// with angleAt give a rest shape with no energy, to the bit.
 double angleAt(const Vec3& centre, const Vec3& a, const Vec3& b);
 
 /// Radial spring (section 5.1), energy kappa/2 (d - lambda)^2 with d = |r_i - r_j|.
@@ -68,7 +71,8 @@ PotentialEnergy accumulateInternalForces(const Model& model, const Points& posit
 double accumulateGravity(const PhysicalProperties& properties, const Points& position,
                          Points& force);
 
-/// Potential energy only (no forces).
+/// Potential energy only (no forces), on all threads and the same bits on any thread count
+/// (every cycle's diagnostics take it).
 PotentialEnergy potentialEnergy(const Model& model, const Points& position);
 
 /// The internal forces of a whole model as the steppers evaluate them every step: the same
