@@ -7,6 +7,7 @@
 #include <cmath>
 #include <numbers>
 #include <random>
+#include <string>
 #include <vector>
 
 // The tests are built without -fopenmp but link libgomp through the physics library: its
@@ -867,6 +868,74 @@ TEST(ForceKernel, PropertyEditsRefreshTheCachedEdgeStiffness) {
   kernel.rebuild(model);
   kernel.compute(model, x, f, 1);
   EXPECT_TRUE(f == referenceForces(model, x));
+}
+
+TEST(ForceKernel, ItsEnergyIsPotentialEnergysOnEveryPath) {
+  // The energy the force pass takes on the way (what every cycle's diagnostics read) against
+  // potentialEnergy's separate evaluation: uniform runs, the general path, blocks without
+  // angle springs (each edge once), any table layout, the reference, degenerate angles.
+  auto expectSame = [](const Model& model, const Points& x, const std::string& what) {
+    const PotentialEnergy expected = potentialEnergy(model, x);
+    double scale = 0.0;  // a rest shape's energy is rounding: kappa_theta (1e-16)^2 per angle
+    for (Index k = 0; k < static_cast<Index>(model.angles.angles.size()); ++k)
+      scale += model.properties.angularStiffness[model.angles.angles[static_cast<size_t>(k)][0]];
+    PotentialEnergy got[2];
+    for (int threads : {1, 2}) {
+      ForceKernel kernel(model, threads);
+      Points f(x.rows(), 3);
+      kernel.compute(model, x, f, threads);
+      got[threads - 1] = kernel.energy();
+    }
+    const PotentialEnergy& one = got[0];
+    EXPECT_NEAR(one.radial, expected.radial, 1e-13 * expected.radial + 1e-300) << what;
+    EXPECT_NEAR(one.angular, expected.angular, 1e-12 * expected.angular + 1e-28 * scale) << what;
+    EXPECT_EQ(one.gravity, 0.0) << what;
+    EXPECT_EQ(got[1].radial, one.radial) << what;  // any thread count, the same bits
+    EXPECT_EQ(got[1].angular, one.angular) << what;
+  };
+  int index = 0;
+  for (Mesh mesh : {makeTorus(30, 20), makeGrid(12), makeFins(), makeHelix(40), makeLattice(5)}) {
+    const std::string name = "mesh " + std::to_string(index++);
+    for (double angular : {0.0, 0.7}) {
+      Model model = withAngles(mesh, angular);  // 0: blocks of radial springs alone
+      if (angular > 0.0) {
+        model.properties.angularStiffness[2] = 0.0;  // mixed: runs broken up, general path
+        model.properties.angularStiffness[5] = 3.0;
+      }
+      model.properties.stiffness[3] = 0.0;   // a cut
+      model.properties.restLength[0] = 0.0;  // a linear spring
+      for (double amplitude : {0.0, 0.2})
+        expectSame(model, deformed(model, amplitude, 31),
+                   name + " angular " + std::to_string(angular) + " amplitude " +
+                       std::to_string(amplitude));
+      if (angular == 0.0) continue;
+      // Every rest angle 0.1 off at the rest shape: the straight angles of the grid and the
+      // lattice (sine 0) take angleSpringForce's degenerate branch, with energy.
+      Model bent = model;
+      bent.properties.restAngle.array() -= 0.1;
+      expectSame(bent, bent.mesh.positions(), name + " bent rest angles");
+      EXPECT_GT(potentialEnergy(bent, bent.mesh.positions()).angular, 0.0);
+    }
+  }
+  // Several blocks, some without angle springs, crushed edges (the spring's continuation).
+  Model big = withAngles(makeTorus(90, 50), 0.7);
+  const Index n = big.mesh.numVertices();
+  for (Index v = n / 2; v < n; ++v) big.properties.angularStiffness[v] = 0.0;
+  big.properties.restLength.head(200).array() *= 3.0;
+  expectSame(big, deformed(big, 0.2, 32), "two kinds of block");
+  // A table in another layout (the general path) and one the kernel cannot use (reference).
+  Model model = withAngles(makeGrid(9), 0.6);
+  AngleTable& table = model.angles;
+  for (Index v = 0; v < model.mesh.numVertices(); ++v) {
+    auto begin = table.angles.begin() + table.vertexOffsets[v];
+    auto end = table.angles.begin() + table.vertexOffsets[v + 1];
+    std::reverse(begin, end);
+    std::reverse(model.properties.restAngle.data() + table.vertexOffsets[v],
+                 model.properties.restAngle.data() + table.vertexOffsets[v + 1]);
+  }
+  expectSame(model, deformed(model, 0.15, 33), "shuffled table");
+  model.angles.angles[0][1] = model.angles.angles[0][0] + 40;
+  expectSame(model, deformed(model, 0.15, 33), "reference");
 }
 
 TEST(Threads, ForcesAndStepsAreBitIdenticalWhateverTheThreadCount) {

@@ -21,11 +21,26 @@ Diagnostics measureKinematics(const VectorX& mass, const State& state) {
   return d;
 }
 
-Diagnostics measure(const Model& model, const State& state) {
+namespace {
+
+Diagnostics withPotential(const Model& model, const State& state,
+                          const PotentialEnergy& potential) {
   Diagnostics d = measureKinematics(model.properties.mass, state);
-  d.potential = potentialEnergy(model, state.position);
+  d.potential = potential;
   d.partial = d.total() / static_cast<double>(model.mesh.numVertices());
   return d;
+}
+
+}  // namespace
+
+Diagnostics measure(const Model& model, const State& state) {
+  return withPotential(model, state, potentialEnergy(model, state.position));
+}
+
+Diagnostics measure(const Model& model, const State& state, const PotentialEnergy& internal) {
+  PotentialEnergy potential = internal;
+  potential.gravity = gravityEnergy(model.properties, state.position);
+  return withPotential(model, state, potential);
 }
 
 }  // namespace zsculpt

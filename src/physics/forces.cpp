@@ -114,11 +114,12 @@ inline void armsSinCos(double ux, double uy, double uz, double wx, double wy, do
   c = ux * wx + uy * wy + uz * wz;
 }
 
-// beta = (theta - theta_0) / sin(theta), theta = atan2(sin, cos) in [0, pi]; zero when the
-// sine is 1e-12 or less (those angles are the caller's: angleSpringForce handles them).
-// atan x and 1 / sin with it cost one division (atanParts). The arms are unit vectors, so
+// beta = (theta - theta_0) / sin(theta), theta = atan2(sin, cos) in [0, pi], and the excess
+// theta - theta_0 (the spring's energy is kappa_theta/2 excess^2); both zero when the sine is
+// 1e-12 or less (those angles are the caller's: angleSpringForce handles them). atan x and
+// 1 / sin with it cost one division (atanParts). The arms are unit vectors, so
 // max(|sin|, |cos|) >= 1/sqrt(2) and nothing under- or overflows.
-inline double angleBeta(double s, double c, double rest) {
+inline double angleBeta(double s, double c, double rest, double& excess) {
   bool sinLarger, reduce;
   double num, den, n2, pt, qt;
   atanParts(s, c, sinLarger, reduce, num, den, n2, pt, qt);
@@ -128,7 +129,14 @@ inline double angleBeta(double s, double c, double rest) {
   const double inv = 1.0 / (denominator * safeSine);
   const double t0 = num * (qt + n2 * pt) * safeSine * inv;
   const double theta = angleFromAtan(t0, reduce, sinLarger, c);
-  return select(regular, (theta - rest) * (denominator * inv), 0.0);
+  excess = select(regular, theta - rest, 0.0);
+  return excess * (denominator * inv);
+}
+
+// The first of `count` items in part `part` of `parts` equal contiguous parts (the parts of
+// potentialEnergy's and gravityEnergy's fixed-order sums).
+inline Index partBegin(std::int64_t count, int part, int parts) {
+  return static_cast<Index>(count * part / parts);
 }
 
 // potentialEnergy's terms in batches, vectorised (square roots, atan2s), gathered by the
@@ -316,12 +324,9 @@ PotentialEnergy potentialEnergy(const Model& model, const Points& position) {
   const Mesh& mesh = model.mesh;
   const PhysicalProperties& p = model.properties;
   const auto& angles = model.angles.angles;
-  const std::int64_t edges = mesh.numEdges(), springs = static_cast<std::int64_t>(angles.size()),
-                     vertices = position.rows();
-  std::array<double, kParts> radial{}, angular{}, gravity{};
-  auto begin = [](std::int64_t count, int part) {
-    return static_cast<Index>(count * part / kParts);
-  };
+  const std::int64_t edges = mesh.numEdges(), springs = static_cast<std::int64_t>(angles.size());
+  std::array<double, kParts> radial{}, angular{};
+  auto begin = [](std::int64_t count, int part) { return partBegin(count, part, kParts); };
 #ifdef _OPENMP
   const bool parallel = edges + springs > 50000 && omp_in_parallel() == 0;
 #endif
@@ -360,17 +365,34 @@ PotentialEnergy potentialEnergy(const Model& model, const Points& position) {
       for (Index j = 0; j < m; ++j) sum += term[j];
     }
     angular[static_cast<size_t>(part)] = sum;
-    sum = 0.0;
-    for (Index i = begin(vertices, part); i < begin(vertices, part + 1); ++i)
-      sum -= p.mass[i] * p.gravity.dot(position.row(i).transpose());
-    gravity[static_cast<size_t>(part)] = sum;
   }
   PotentialEnergy energy;
   for (int part = 0; part < kParts; ++part) {
     energy.radial += radial[static_cast<size_t>(part)];
     energy.angular += angular[static_cast<size_t>(part)];
-    energy.gravity += gravity[static_cast<size_t>(part)];
   }
+  energy.gravity = gravityEnergy(p, position);
+  return energy;
+}
+
+double gravityEnergy(const PhysicalProperties& properties, const Points& position) {
+  // Zero gravity gives +0 term by term (0 - (+-0) is +0): skip the pass.
+  if (properties.gravity.isZero(0.0)) return 0.0;
+  constexpr int kParts = 64;
+  const std::int64_t vertices = position.rows();
+  std::array<double, kParts> part{};
+#ifdef _OPENMP
+  const bool parallel = vertices > 50000 && omp_in_parallel() == 0;
+#endif
+#pragma omp parallel for schedule(static) if (parallel)
+  for (int k = 0; k < kParts; ++k) {
+    double sum = 0.0;
+    for (Index i = partBegin(vertices, k, kParts); i < partBegin(vertices, k + 1, kParts); ++i)
+      sum -= properties.mass[i] * properties.gravity.dot(position.row(i).transpose());
+    part[static_cast<size_t>(k)] = sum;
+  }
+  double energy = 0.0;
+  for (double term : part) energy += term;
   return energy;
 }
 
@@ -417,14 +439,16 @@ constexpr Index kGroupVertices = 1024;
 // kappa (l - lambda) / l (r_w - r_v), which is radialSpringForce's force on v rounding for
 // rounding (the reference computes -kappa (l - lambda) / l (r_v - r_w), and IEEE rounding is
 // symmetric in the sign); kappa (r_w - r_v) for a zero rest length (equation 1). The arm
-// (r_w - r_v) in ax, ay, az becomes its unit vector.
-ZSCULPT_KERNEL void radialBatch(Index count, const Index* __restrict edge,
-                                const double* __restrict edgeKappa,
-                                const double* __restrict restLength, double* __restrict ax,
-                                double* __restrict ay, double* __restrict az,
-                                const double* __restrict length, double* __restrict il,
-                                double* __restrict gx, double* __restrict gy,
-                                double* __restrict gz) {
+// (r_w - r_v) in ax, ay, az becomes its unit vector. With kEnergy the spring's energy goes
+// to energy[j]. (Inlined into the kernel below, and so built for its instruction sets, as
+// are the other *Rows templates.)
+template <bool kEnergy>
+[[gnu::always_inline]] inline void radialRows(
+    Index count, const Index* __restrict edge, const double* __restrict edgeKappa,
+    const double* __restrict restLength, double* __restrict ax, double* __restrict ay,
+    double* __restrict az, const double* __restrict length, double* __restrict il,
+    double* __restrict gx, double* __restrict gy, double* __restrict gz,
+    double* __restrict energy) {
 #pragma omp simd
   for (Index j = 0; j < count; ++j) {
     const double kappa = edgeKappa[edge[j]], rest = restLength[edge[j]], l = length[j];
@@ -434,6 +458,7 @@ ZSCULPT_KERNEL void radialBatch(Index count, const Index* __restrict edge,
     const double stretched = select(positive, std::max(kappa * (l - rest) / safe, -kappa), 0.0);
     const double coefficient = select(kappa == 0.0, 0.0, select(rest == 0.0, kappa, stretched));
     const double inv = select(positive, 1.0 / safe, 0.0);
+    if constexpr (kEnergy) energy[j] = radialEnergy(l, kappa, rest);
     const double ux = ax[j], uy = ay[j], uz = az[j];
     gx[j] = coefficient * ux;
     gy[j] = coefficient * uy;
@@ -443,6 +468,22 @@ ZSCULPT_KERNEL void radialBatch(Index count, const Index* __restrict edge,
     az[j] = uz * inv;
     il[j] = inv;
   }
+}
+
+// radialRows, with the energies when energy is not null.
+ZSCULPT_KERNEL void radialBatch(Index count, const Index* __restrict edge,
+                                const double* __restrict edgeKappa,
+                                const double* __restrict restLength, double* __restrict ax,
+                                double* __restrict ay, double* __restrict az,
+                                const double* __restrict length, double* __restrict il,
+                                double* __restrict gx, double* __restrict gy, double* __restrict gz,
+                                double* __restrict energy) {
+  if (energy)
+    radialRows<true>(count, edge, edgeKappa, restLength, ax, ay, az, length, il, gx, gy, gz,
+                     energy);
+  else
+    radialRows<false>(count, edge, edgeKappa, restLength, ax, ay, az, length, il, gx, gy, gz,
+                      energy);
 }
 
 // The angle springs, kappa_theta left out (section 5.2): the forces on the ends of unit arms
@@ -461,14 +502,13 @@ ZSCULPT_KERNEL void radialBatch(Index count, const Index* __restrict edge,
     FB2 = sb_ * ((uz) - (c) * (wz));                                                      \
   } while (0)
 
-// radialBatch for a chunk without angle springs: the arms stay as they are.
-ZSCULPT_KERNEL void radialOnlyBatch(Index count, const Index* __restrict edge,
-                                    const double* __restrict edgeKappa,
-                                    const double* __restrict restLength,
-                                    const double* __restrict ax, const double* __restrict ay,
-                                    const double* __restrict az,
-                                    const double* __restrict length, double* __restrict gx,
-                                    double* __restrict gy, double* __restrict gz) {
+// radialRows for a chunk without angle springs: the arms stay as they are.
+template <bool kEnergy>
+[[gnu::always_inline]] inline void radialOnlyRows(
+    Index count, const Index* __restrict edge, const double* __restrict edgeKappa,
+    const double* __restrict restLength, const double* __restrict ax, const double* __restrict ay,
+    const double* __restrict az, const double* __restrict length, double* __restrict gx,
+    double* __restrict gy, double* __restrict gz, double* __restrict energy) {
 #pragma omp simd
   for (Index j = 0; j < count; ++j) {
     const double kappa = edgeKappa[edge[j]], rest = restLength[edge[j]], l = length[j];
@@ -476,10 +516,26 @@ ZSCULPT_KERNEL void radialOnlyBatch(Index count, const Index* __restrict edge,
     const double safe = select(positive, l, 1.0);
     const double stretched = select(positive, std::max(kappa * (l - rest) / safe, -kappa), 0.0);
     const double coefficient = select(kappa == 0.0, 0.0, select(rest == 0.0, kappa, stretched));
+    if constexpr (kEnergy) energy[j] = radialEnergy(l, kappa, rest);
     gx[j] = coefficient * ax[j];
     gy[j] = coefficient * ay[j];
     gz[j] = coefficient * az[j];
   }
+}
+
+ZSCULPT_KERNEL void radialOnlyBatch(Index count, const Index* __restrict edge,
+                                    const double* __restrict edgeKappa,
+                                    const double* __restrict restLength,
+                                    const double* __restrict ax, const double* __restrict ay,
+                                    const double* __restrict az, const double* __restrict length,
+                                    double* __restrict gx, double* __restrict gy,
+                                    double* __restrict gz, double* __restrict energy) {
+  if (energy)
+    radialOnlyRows<true>(count, edge, edgeKappa, restLength, ax, ay, az, length, gx, gy, gz,
+                         energy);
+  else
+    radialOnlyRows<false>(count, edge, edgeKappa, restLength, ax, ay, az, length, gx, gy, gz,
+                          energy);
 }
 
 // The arms r_second - r_first of a group's edges and their lengths (the same sums as
@@ -518,22 +574,24 @@ ZSCULPT_KERNEL void angleCosSin(Index m, const Index* __restrict p, const Index*
 }
 
 // Forces of a batch of angles with arms p[k], q[k] (indices into the arm arrays); the
-// first arm's force goes to fa[k], the second's to fb[k]. Returns the smallest sine.
-ZSCULPT_KERNEL double angleForces(Index m, const Index* __restrict p, const Index* __restrict q,
-                                  const double* __restrict ax, const double* __restrict ay,
-                                  const double* __restrict az, const double* __restrict il,
-                                  const double* __restrict sine,
-                                  const double* __restrict cosine,
-                                  const double* __restrict rest, double* __restrict fax,
-                                  double* __restrict fay, double* __restrict faz,
-                                  double* __restrict fbx, double* __restrict fby,
-                                  double* __restrict fbz) {
+// first arm's force goes to fa[k], the second's to fb[k], and with kEnergy the squared
+// excess theta - theta_0 to excess2[k]. Returns the smallest sine. (Inlined into the kernel
+// below, and so built for its instruction sets.)
+template <bool kEnergy>
+[[gnu::always_inline]] inline double angleForceRows(
+    Index m, const Index* __restrict p, const Index* __restrict q, const double* __restrict ax,
+    const double* __restrict ay, const double* __restrict az, const double* __restrict il,
+    const double* __restrict sine, const double* __restrict cosine, const double* __restrict rest,
+    double* __restrict fax, double* __restrict fay, double* __restrict faz, double* __restrict fbx,
+    double* __restrict fby, double* __restrict fbz, double* __restrict excess2) {
   double smallest = 1.0;
 #pragma omp simd reduction(min : smallest)
   for (Index k = 0; k < m; ++k) {
     const double s = sine[k], c = cosine[k];
     smallest = std::min(smallest, s);
-    const double beta = angleBeta(s, c, rest[k]);
+    double excess;
+    const double beta = angleBeta(s, c, rest[k], excess);
+    if constexpr (kEnergy) excess2[k] = excess * excess;
     const Index i = p[k], j = q[k];
     ZSCULPT_ANGLE_FORCE(beta, c, ax[i], ay[i], az[i], il[i], ax[j], ay[j], az[j], il[j], fax[k],
                         fay[k], faz[k], fbx[k], fby[k], fbz[k]);
@@ -541,10 +599,26 @@ ZSCULPT_KERNEL double angleForces(Index m, const Index* __restrict p, const Inde
   return smallest;
 }
 
+// angleForceRows, with the squared excesses when excess2 is not null.
+ZSCULPT_KERNEL double angleForces(Index m, const Index* __restrict p, const Index* __restrict q,
+                                  const double* __restrict ax, const double* __restrict ay,
+                                  const double* __restrict az, const double* __restrict il,
+                                  const double* __restrict sine, const double* __restrict cosine,
+                                  const double* __restrict rest, double* __restrict fax,
+                                  double* __restrict fay, double* __restrict faz,
+                                  double* __restrict fbx, double* __restrict fby,
+                                  double* __restrict fbz, double* __restrict excess2) {
+  return excess2 ? angleForceRows<true>(m, p, q, ax, ay, az, il, sine, cosine, rest, fax, fay, faz,
+                                        fbx, fby, fbz, excess2)
+                 : angleForceRows<false>(m, p, q, ax, ay, az, il, sine, cosine, rest, fax, fay, faz,
+                                         fbx, fby, fbz, excess2);
+}
+
 // A run of L vertices of one degree with every angle spring on: the arms transposed by slot
 // (arm a of the run's vertex i at a L + i), angle (a, b) = pair k of vertex i at k L + i
 // (its rest angle at rest[k + pairs i]). Same arithmetic as angleCosSin and angleForces,
-// vectorised across the vertices without gathers.
+// vectorised across the vertices without gathers; runForces sums each vertex's squared
+// excesses in excess2[i] when excess2 is not null.
 ZSCULPT_KERNEL void runCosSin(Index pairs, Index count, const Index* __restrict pairA,
                               const Index* __restrict pairB, const double* __restrict ax,
                               const double* __restrict ay, const double* __restrict az,
@@ -568,6 +642,34 @@ ZSCULPT_KERNEL void runCosSin(Index pairs, Index count, const Index* __restrict 
   }
 }
 
+template <bool kEnergy>
+[[gnu::always_inline]] inline double runForceRows(
+    Index pairs, Index count, const Index* __restrict pairA, const Index* __restrict pairB,
+    const double* __restrict ax, const double* __restrict ay, const double* __restrict az,
+    const double* __restrict il, const double* __restrict sine, const double* __restrict cosine,
+    const double* __restrict rest, double* __restrict fax, double* __restrict fay,
+    double* __restrict faz, double* __restrict fbx, double* __restrict fby, double* __restrict fbz,
+    double* __restrict excess2) {
+  double smallest = 1.0;
+  if constexpr (kEnergy)
+    for (Index i = 0; i < count; ++i) excess2[i] = 0.0;
+  for (Index k = 0; k < pairs; ++k) {
+    const Index a = pairA[k] * count, b = pairB[k] * count, o = k * count;
+#pragma omp simd reduction(min : smallest)
+    for (Index i = 0; i < count; ++i) {
+      const double s = sine[o + i], c = cosine[o + i];
+      smallest = std::min(smallest, s);
+      double excess;
+      const double beta = angleBeta(s, c, rest[k + pairs * i], excess);
+      if constexpr (kEnergy) excess2[i] += excess * excess;
+      ZSCULPT_ANGLE_FORCE(beta, c, ax[a + i], ay[a + i], az[a + i], il[a + i], ax[b + i],
+                          ay[b + i], az[b + i], il[b + i], fax[o + i], fay[o + i], faz[o + i],
+                          fbx[o + i], fby[o + i], fbz[o + i]);
+    }
+  }
+  return smallest;
+}
+
 ZSCULPT_KERNEL double runForces(Index pairs, Index count, const Index* __restrict pairA,
                                 const Index* __restrict pairB, const double* __restrict ax,
                                 const double* __restrict ay, const double* __restrict az,
@@ -575,21 +677,12 @@ ZSCULPT_KERNEL double runForces(Index pairs, Index count, const Index* __restric
                                 const double* __restrict cosine, const double* __restrict rest,
                                 double* __restrict fax, double* __restrict fay,
                                 double* __restrict faz, double* __restrict fbx,
-                                double* __restrict fby, double* __restrict fbz) {
-  double smallest = 1.0;
-  for (Index k = 0; k < pairs; ++k) {
-    const Index a = pairA[k] * count, b = pairB[k] * count, o = k * count;
-#pragma omp simd reduction(min : smallest)
-    for (Index i = 0; i < count; ++i) {
-      const double s = sine[o + i], c = cosine[o + i];
-      smallest = std::min(smallest, s);
-      const double beta = angleBeta(s, c, rest[k + pairs * i]);
-      ZSCULPT_ANGLE_FORCE(beta, c, ax[a + i], ay[a + i], az[a + i], il[a + i], ax[b + i],
-                          ay[b + i], az[b + i], il[b + i], fax[o + i], fay[o + i], faz[o + i],
-                          fbx[o + i], fby[o + i], fbz[o + i]);
-    }
-  }
-  return smallest;
+                                double* __restrict fby, double* __restrict fbz,
+                                double* __restrict excess2) {
+  return excess2 ? runForceRows<true>(pairs, count, pairA, pairB, ax, ay, az, il, sine, cosine,
+                                      rest, fax, fay, faz, fbx, fby, fbz, excess2)
+                 : runForceRows<false>(pairs, count, pairA, pairB, ax, ay, az, il, sine, cosine,
+                                       rest, fax, fay, faz, fbx, fby, fbz, excess2);
 }
 
 // Arms of a uniform chunk (L = count vertices from c0, of one degree), by slot: arm a of
@@ -763,6 +856,7 @@ ForceKernel::ForceKernel(const Model& model, int maxThreads) {
   }
   halo_.assign(3 * static_cast<size_t>(haloStart_.back()), 0.0);
   blockHasAngles_.assign(static_cast<size_t>(blocks), 0);
+  blockEnergy_.assign(2 * static_cast<size_t>(blocks), 0.0);
   // Incoming contributions per receiving block, by row then source block (stable sort: the
   // list is already in source block order).
   std::stable_sort(incoming.begin(), incoming.end(),
@@ -898,11 +992,11 @@ ForceKernel::ForceKernel(const Model& model, int maxThreads) {
   for (Scratch& s : scratch_) {
     s.acc.resize(maxAccumulator);
     // The arms, lengths and radial forces also serve the edge groups.
-    for (auto* v : {&s.ax, &s.ay, &s.az, &s.length, &s.gx, &s.gy, &s.gz})
+    for (auto* v : {&s.ax, &s.ay, &s.az, &s.length, &s.gx, &s.gy, &s.gz, &s.energy})
       v->resize(std::max(maxArms, maxGroupEdges));
     for (auto* v : {&s.invLength, &s.tx, &s.ty, &s.tz, &s.tl}) v->resize(maxArms);
     for (auto* v : {&s.armP, &s.armQ}) v->resize(maxAngles);
-    for (auto* v : {&s.rest, &s.cosine, &s.sine}) v->resize(maxAngles);
+    for (auto* v : {&s.rest, &s.cosine, &s.sine, &s.excess2}) v->resize(maxAngles);
     for (auto* v : {&s.fx, &s.fy, &s.fz}) v->resize(2 * maxAngles);
   }
   rebuild(model);
@@ -938,12 +1032,12 @@ size_t ForceKernel::bytes() const {
         &pairStart_,      &pairA_,       &pairB_,        &termStart_,     &armTermStart_,
         &armTerm_})
     total += v->capacity() * sizeof(Index);
-  total += halo_.capacity() * sizeof(double) + blockHasAngles_.capacity() +
-           static_cast<size_t>(edgeKappa_.size()) * sizeof(double);
+  total += (halo_.capacity() + blockEnergy_.capacity()) * sizeof(double) +
+           blockHasAngles_.capacity() + static_cast<size_t>(edgeKappa_.size()) * sizeof(double);
   for (const Scratch& s : scratch_) {
-    for (const auto* v : {&s.acc, &s.ax, &s.ay, &s.az, &s.length, &s.invLength, &s.gx, &s.gy,
-                          &s.gz, &s.tx, &s.ty, &s.tz, &s.tl, &s.rest, &s.cosine, &s.sine, &s.fx,
-                          &s.fy, &s.fz})
+    for (const auto* v : {&s.acc,    &s.ax,   &s.ay, &s.az, &s.length, &s.invLength, &s.gx,
+                          &s.gy,     &s.gz,   &s.tx, &s.ty, &s.tz,     &s.tl,        &s.rest,
+                          &s.cosine, &s.sine, &s.fx, &s.fy, &s.fz,     &s.energy,    &s.excess2})
       total += v->capacity() * sizeof(double);
     for (const auto* v : {&s.armP, &s.armQ}) total += v->capacity() * sizeof(Index);
   }
@@ -953,7 +1047,7 @@ size_t ForceKernel::bytes() const {
 void ForceKernel::compute(const Model& model, const Points& position, Points& force,
                           int threads) {
   if (inParallel()) {
-    scatter(model, position, force);
+    scatter(model, position, force, true);
 #pragma omp for schedule(static)
     for (Index b = 0; b < numBlocks(); ++b) gatherBlock(b, force);
     return;
@@ -962,29 +1056,33 @@ void ForceKernel::compute(const Model& model, const Points& position, Points& fo
   (void)team;
 #pragma omp parallel num_threads(team) if (team > 1)
   {
-    scatter(model, position, force);
+    scatter(model, position, force, true);
 #pragma omp for schedule(static)
     for (Index b = 0; b < numBlocks(); ++b) gatherBlock(b, force);
   }
 }
 
-void ForceKernel::scatter(const Model& model, const Points& position, Points& force) {
+void ForceKernel::scatter(const Model& model, const Points& position, Points& force,
+                          bool withEnergy) {
   if (reference_) {
 #pragma omp single
     {
       force.setZero();
-      accumulateInternalForces(model, position, force);
+      const PotentialEnergy e = accumulateInternalForces(model, position, force);
+      std::fill(blockEnergy_.begin(), blockEnergy_.end(), 0.0);
+      blockEnergy_[0] = e.radial;
+      blockEnergy_[1] = e.angular;
     }
     return;
   }
   Scratch& scratch = scratch_[static_cast<size_t>(threadNumber())];
   const Index blocks = numBlocks();
 #pragma omp for schedule(dynamic, 1)
-  for (Index b = 0; b < blocks; ++b) scatterBlock(model, position, force, b, scratch);
+  for (Index b = 0; b < blocks; ++b) scatterBlock(model, position, force, b, scratch, withEnergy);
 }
 
 void ForceKernel::scatterBlock(const Model& model, const Points& position, Points& force,
-                               Index block, Scratch& s) {
+                               Index block, Scratch& s, bool withEnergy) {
   const Mesh& mesh = model.mesh;
   const PhysicalProperties& prop = model.properties;
   const Index v0 = blockStart_[static_cast<size_t>(block)];
@@ -992,7 +1090,7 @@ void ForceKernel::scatterBlock(const Model& model, const Points& position, Point
   const Index length = v1 - v0;
   const double* kappaTheta = prop.angularStiffness.data();
   if (std::all_of(kappaTheta + v0, kappaTheta + v1, [](double k) { return k == 0.0; })) {
-    radialOnlyBlock(model, position, force, block, s);
+    radialOnlyBlock(model, position, force, block, s, withEnergy);
     blockHasAngles_[static_cast<size_t>(block)] = 0;
     return;
   }
@@ -1013,6 +1111,11 @@ void ForceKernel::scatterBlock(const Model& model, const Points& position, Point
   double* len = s.length.data();
   const size_t second = static_cast<size_t>(maxAngles_);
   bool anyAngle = false;
+  // The block's energies (withEnergy): each radial spring from both of its ends (halved at
+  // the end), each angle spring from its centre, in the kernel's order.
+  double radialSum = 0.0, angularSum = 0.0;
+  double* excess2 = withEnergy ? s.excess2.data() : nullptr;
+  double* energy = withEnergy ? s.energy.data() : nullptr;
 
   // The degenerate angles of centre v (arms (anti)parallel or of zero length), whose
   // direction angleSpringForce picks, into the accumulator (tc: the centre's row);
@@ -1024,8 +1127,8 @@ void ForceKernel::scatterBlock(const Model& model, const Points& position, Point
       Index hp, hq;
       armsOf(k, hp, hq);
       Vec3 fc, fa, fb;
-      angleSpringForce(position.row(v), position.row(nbr[hp]), position.row(nbr[hq]), kappa,
-                       restAngle[angleOffsets[v] + k], fc, fa, fb);
+      angularSum += angleSpringForce(position.row(v), position.row(nbr[hp]), position.row(nbr[hq]),
+                                     kappa, restAngle[angleOffsets[v] + k], fc, fa, fb);
       double* ta = acc + 3 * static_cast<size_t>(target_[static_cast<size_t>(hp)]);
       double* tb = acc + 3 * static_cast<size_t>(target_[static_cast<size_t>(hq)]);
       for (int d = 0; d < 3; ++d) {
@@ -1093,7 +1196,7 @@ void ForceKernel::scatterBlock(const Model& model, const Points& position, Point
     const double smallest =
         runForces(pairs, count, pa, pb, tx, ty, tz, tl, s.sine.data(), s.cosine.data(),
                   restAngle + angleOffsets[v], s.fx.data(), s.fy.data(), s.fz.data(),
-                  s.fx.data() + second, s.fy.data() + second, s.fz.data() + second);
+                  s.fx.data() + second, s.fy.data() + second, s.fz.data() + second, excess2);
     slotSums(degree, count, maxAngles_,
              armTermStart_.data() + termStart_[static_cast<size_t>(degree)], armTerm_.data(),
              s.fx.data(), s.fy.data(), s.fz.data(), s.gx.data(), s.gy.data(), s.gz.data());
@@ -1103,6 +1206,9 @@ void ForceKernel::scatterBlock(const Model& model, const Points& position, Point
     double* cy = s.fy.data();
     double* cz = s.fz.data();
     slotScale(degree, count, kappaTheta + v, s.gx.data(), s.gy.data(), s.gz.data(), cx, cy, cz);
+    if (withEnergy)
+      for (Index i = 0; i < count; ++i)
+        if (kappaTheta[v + i] != 0.0) angularSum += 0.5 * kappaTheta[v + i] * excess2[i];
     for (Index i = 0; i < count; ++i) {
       const Index w = v + i;
       if (kappaTheta[w] == 0.0) continue;
@@ -1155,11 +1261,13 @@ void ForceKernel::scatterBlock(const Model& model, const Points& position, Point
     bool chunkAngles = false;
     for (Index v = c0; v < c1 && !chunkAngles; ++v) chunkAngles = kappaTheta[v] != 0.0;
     if (chunkAngles)
-      radialBatch(arms, edge_.data() + h0, edgeKappa_.data(), prop.restLength.data(), ax, ay,
-                  az, len, il, s.gx.data(), s.gy.data(), s.gz.data());
+      radialBatch(arms, edge_.data() + h0, edgeKappa_.data(), prop.restLength.data(), ax, ay, az,
+                  len, il, s.gx.data(), s.gy.data(), s.gz.data(), energy);
     else
       radialOnlyBatch(arms, edge_.data() + h0, edgeKappa_.data(), prop.restLength.data(), ax, ay,
-                      az, len, s.gx.data(), s.gy.data(), s.gz.data());
+                      az, len, s.gx.data(), s.gy.data(), s.gz.data(), energy);
+    if (withEnergy)
+      for (Index j = 0; j < arms; ++j) radialSum += energy[j];
     // Each vertex adds its edges' forces in increasing edge index (Mesh::vertexEdges, the arm
     // order), as accumulateInternalForces does: without angle springs the forces are
     // bit-identical to the reference.
@@ -1247,14 +1355,19 @@ void ForceKernel::scatterBlock(const Model& model, const Points& position, Point
           m += count;
         }
         angleCosSin(m, s.armP.data(), s.armQ.data(), ax, ay, az, s.cosine.data(), s.sine.data());
-        const double smallest = angleForces(
-            m, s.armP.data(), s.armQ.data(), ax, ay, az, il, s.sine.data(), s.cosine.data(),
-            s.rest.data(), s.fx.data(), s.fy.data(), s.fz.data(), s.fx.data() + second,
-            s.fy.data() + second, s.fz.data() + second);
+        const double smallest =
+            angleForces(m, s.armP.data(), s.armQ.data(), ax, ay, az, il, s.sine.data(),
+                        s.cosine.data(), s.rest.data(), s.fx.data(), s.fy.data(), s.fz.data(),
+                        s.fx.data() + second, s.fy.data() + second, s.fz.data() + second, excess2);
         Index k0 = 0;
         for (Index w = v; w < u; ++w) {
           const Index d = off[w + 1] - off[w];
           const Index count = angleOffsets[w + 1] - angleOffsets[w];
+          if (withEnergy) {
+            double squares = 0.0;
+            for (Index k = k0; k < k0 + count; ++k) squares += excess2[k];
+            angularSum += 0.5 * kappaTheta[w] * squares;
+          }
           auto slot = [&](Index a) { return off[w] + a; };
           auto sineOf = [&](Index k) { return s.sine[static_cast<size_t>(k0 + k)]; };
           auto armsOf = [&](Index k, Index& hp, Index& hq) {
@@ -1313,10 +1426,14 @@ void ForceKernel::scatterBlock(const Model& model, const Points& position, Point
               acc + 3 * static_cast<size_t>(length + haloLength),
               halo_.data() + 3 * static_cast<size_t>(haloBegin));
   blockHasAngles_[static_cast<size_t>(block)] = anyAngle ? 1 : 0;
+  if (withEnergy) {
+    blockEnergy_[2 * static_cast<size_t>(block)] = 0.5 * radialSum;
+    blockEnergy_[2 * static_cast<size_t>(block) + 1] = angularSum;
+  }
 }
 
 void ForceKernel::radialOnlyBlock(const Model& model, const Points& position, Points& force,
-                                  Index block, Scratch& s) const {
+                                  Index block, Scratch& s, bool withEnergy) {
   // The radial springs (section 5.1) of each edge once: its force on the first end,
   // kappa (l - lambda) / l (r_second - r_first), the gather path's rounding for rounding
   // (and minus it, exactly, on the second end). Each vertex adds its edges' forces in arm
@@ -1331,6 +1448,8 @@ void ForceKernel::radialOnlyBlock(const Model& model, const Points& position, Po
   const double* gx = s.gx.data();
   const double* gy = s.gy.data();
   const double* gz = s.gz.data();
+  double* energy = withEnergy ? s.energy.data() : nullptr;
+  double radialSum = 0.0;  // each spring from both ends, as scatterBlock takes it
   for (Index g = blockGroup_[static_cast<size_t>(block)];
        g < blockGroup_[static_cast<size_t>(block) + 1]; ++g) {
     const Index e0 = groupEdgeStart_[static_cast<size_t>(g)];
@@ -1338,7 +1457,7 @@ void ForceKernel::radialOnlyBlock(const Model& model, const Points& position, Po
     edgeArms(count, groupFirst_.data() + e0, groupSecond_.data() + e0, r, ax, ay, az, len);
     radialOnlyBatch(count, groupEdge_.data() + e0, edgeKappa_.data(),
                     model.properties.restLength.data(), ax, ay, az, len, s.gx.data(), s.gy.data(),
-                    s.gz.data());
+                    s.gz.data(), energy);
     for (Index v = groupStart_[static_cast<size_t>(g)]; v < groupStart_[static_cast<size_t>(g) + 1];
          ++v) {
       double fx = 0.0, fy = 0.0, fz = 0.0;
@@ -1361,7 +1480,26 @@ void ForceKernel::radialOnlyBlock(const Model& model, const Points& position, Po
       row[1] = fy;
       row[2] = fz;
     }
+    if (!withEnergy) continue;
+    for (Index h = off[groupStart_[static_cast<size_t>(g)]];
+         h < off[groupStart_[static_cast<size_t>(g) + 1]]; ++h) {
+      const Index slot = armSlot_[static_cast<size_t>(h)];
+      radialSum += energy[slot >= 0 ? slot : ~slot];
+    }
   }
+  if (withEnergy) {
+    blockEnergy_[2 * static_cast<size_t>(block)] = 0.5 * radialSum;
+    blockEnergy_[2 * static_cast<size_t>(block) + 1] = 0.0;
+  }
+}
+
+PotentialEnergy ForceKernel::energy() const {
+  PotentialEnergy total;
+  for (size_t b = 0; b + 1 < blockEnergy_.size(); b += 2) {
+    total.radial += blockEnergy_[b];
+    total.angular += blockEnergy_[b + 1];
+  }
+  return total;
 }
 
 Index ForceKernel::uniformVertices() const {

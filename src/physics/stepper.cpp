@@ -283,6 +283,13 @@ void Stepper::rebuild() {
   kickValid_ = false;
 }
 
+std::optional<PotentialEnergy> Stepper::internalEnergy() const {
+  // Only the default scheme ends a step with the forces at its end position (cacheValid_);
+  // the kernel's last pass is that one.
+  if (scheme_ != Scheme::Default || !cacheValid_ || !options_.measureEnergy) return std::nullopt;
+  return forces_.energy();
+}
+
 size_t Stepper::bytes() const {
   auto sparse = [](const SparseRowMatrix& m) {
     return static_cast<size_t>(m.nonZeros()) * (sizeof(double) + sizeof(Index)) +
@@ -661,7 +668,7 @@ void Stepper::stepDefault(State& s, const Points& external, std::span<const doub
       });
     }
     // Internal forces at the new position.
-    forces_.scatter(model_, s.position, previousInternal_);
+    forces_.scatter(model_, s.position, previousInternal_, options_.measureEnergy);
     const double* f1 = previousInternal_.data();
     if (stored) {
       withCase([&](auto loads, auto withGravity, auto withShare) {
@@ -862,7 +869,7 @@ void Stepper::stepDriftFiltered(State& s, const Points& external, std::span<cons
     for (Index b = 0; b < blocks; ++b)
       rows.drift(in, forces_.blockBegin(b), forces_.blockEnd(b), term, v, r, t, t2);
     // Internal forces at the new position, the second kick and damping.
-    forces_.scatter(model_, s.position, previousInternal_);
+    forces_.scatter(model_, s.position, previousInternal_, options_.measureEnergy);
     filteredKick(previousInternal_.data(), nullptr, true);
 #pragma omp single
     externalZero = zero;

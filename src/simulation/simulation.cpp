@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <array>
 #include <cmath>
+#include <optional>
 #include <string>
 
 #include "zsculpt/core/errors.h"
@@ -17,7 +18,9 @@ Simulation::Simulation(Model model, const SimulationSettings& settings)
                             " must be at least 1");
   state_ = State::atRest(model_.mesh);
   lastGood_ = state_;
-  stepper_ = std::make_unique<Stepper>(model_, settings.scheme, settings.period, settings.stepper);
+  // Every cycle's diagnostics read the energy the step takes on the way (diagnostics()).
+  settings_.stepper.measureEnergy = true;
+  stepper_ = std::make_unique<Stepper>(model_, settings.scheme, settings.period, settings_.stepper);
   cyclePeriod_ = stepper_->period();
   const Index n = model_.mesh.numVertices();
   for (Points* p : {&external_, &constraintForce_, &baseForce_, &totalForce_, &loadForce_,
@@ -98,6 +101,7 @@ void Simulation::setState(const State& state) {
   else rigidMomentum_ = RigidMomentum{};
   lastGood_ = state_;
   baseForceValid_ = false;
+  energyAtState_ = false;
   ledger_ = ImpulseLedger{};
   stepper_->invalidate();
 }
@@ -114,6 +118,7 @@ void Simulation::propertiesChanged(std::span<const Index> vertices) {
       checkPropertyValue(property, p.vertexValues(property)[v], "vertex " + std::to_string(v));
   }
   stepper_->propertiesChanged(vertices);
+  energyAtState_ = false;
   const bool wasActive = rigidActive_;
   updateRigidity();
   if (rigidActive_) splitVelocity();
@@ -123,6 +128,7 @@ void Simulation::propertiesChanged(std::span<const Index> vertices) {
 void Simulation::allPropertiesChanged() {
   model_.properties.validate(model_.mesh, model_.angles);
   stepper_->rebuild();
+  energyAtState_ = false;
   const bool wasActive = rigidActive_;
   updateRigidity();
   if (rigidActive_) splitVelocity();
@@ -278,7 +284,15 @@ void Simulation::chooseSubsteps() {
   responseValid_ = false;  // the constraints' response is the step's
 }
 
+Diagnostics Simulation::diagnostics() const {
+  if (energyAtState_)
+    if (const std::optional<PotentialEnergy> internal = stepper_->internalEnergy())
+      return measure(model_, state_, *internal);
+  return measure(model_, state_);
+}
+
 void Simulation::step() {
+  energyAtState_ = false;
   chooseSubsteps();
   lastGood_.position = state_.position;
   lastGood_.velocity = state_.velocity;
@@ -332,6 +346,7 @@ void Simulation::step() {
     }
     ledger_ = ledgerBefore;
     baseForceValid_ = false;
+    energyAtState_ = false;
     stepper_->invalidate();
     throw;
   }
@@ -357,6 +372,8 @@ void Simulation::subCycle(const Points& start) {
   // The loads are held over the step: their work is F . dx exactly.
   if (!forces_.empty() || !torques_.empty())
     loadWork_ += (external_.array() * (state_.position - start).array()).sum();
+  // The plain cycle's stepper stepped state_ itself and nothing moved it since.
+  energyAtState_ = !rigidActive_ && constraints_.empty();
 }
 
 void Simulation::computeBaseForce(const Points& position) {

@@ -20,6 +20,9 @@ struct Diagnostics {
 };
 
 Diagnostics measure(const Model& model, const State& state);
+/// measure() with the radial and angular energy already known at state.position (`internal`,
+/// its gravity ignored), e.g. from the step's own force pass (Stepper::internalEnergy).
+Diagnostics measure(const Model& model, const State& state, const PotentialEnergy& internal);
 
 /// Kinetic energy, momentum, angular momentum about the centre of mass, without potential.
 Diagnostics measureKinematics(const VectorX& mass, const State& state);

@@ -71,6 +71,10 @@ PotentialEnergy accumulateInternalForces(const Model& model, const Points& posit
 double accumulateGravity(const PhysicalProperties& properties, const Points& position,
                          Points& force);
 
+/// The gravitational potential -sum mu_i g . r_i alone, as potentialEnergy() takes it (in
+/// fixed parts on all threads: the same bits on any thread count).
+double gravityEnergy(const PhysicalProperties& properties, const Points& position);
+
 /// Potential energy only (no forces), on all threads and the same bits on any thread count
 /// (every cycle's diagnostics take it).
 PotentialEnergy potentialEnergy(const Model& model, const Points& position);
@@ -115,10 +119,19 @@ class ForceKernel {
   void compute(const Model& model, const Points& position, Points& force, int threads = 0);
 
   /// Phase 1 (worksharing over blocks, ends with a barrier): every block's own rows of
-  /// `force` and its halo buffer.
-  void scatter(const Model& model, const Points& position, Points& force);
+  /// `force` and its halo buffer; with `withEnergy` also the energy() at `position` (a few
+  /// per cent more work).
+  void scatter(const Model& model, const Points& position, Points& force, bool withEnergy = false);
   /// Phase 2 for one block: adds the halo contributions of other blocks to its rows.
   void gatherBlock(Index block, Points& force) const;
+
+  /// The radial and angular energy at the position of the last compute() or scatter() with
+  /// `withEnergy`, taken in the same pass as the forces (gravity is left at 0). Each block sums its
+  /// springs' energies vertex by vertex, the blocks are added in block order: the same bits on any
+  /// thread count. It agrees with potentialEnergy() to rounding (its sums run in another
+  /// order, and its angles come from unit arms), so the energy of a rest shape is of the
+  /// order of kappa_theta 1e-32 here where potentialEnergy() gives exactly 0.
+  [[nodiscard]] PotentialEnergy energy() const;
 
   [[nodiscard]] Index numBlocks() const { return static_cast<Index>(blockStart_.size()) - 1; }
   /// Vertices in chunks of one degree (the fully vectorised path), for the report.
@@ -146,12 +159,14 @@ class ForceKernel {
     // the two arm ends without kappa_theta (first arm's at k, second arm's at k + maxAngles).
     std::vector<Index> armP, armQ;
     std::vector<double> rest, cosine, sine, fx, fy, fz;
+    // Per half-edge its radial spring's energy; per angle its squared excess theta - theta_0.
+    std::vector<double> energy, excess2;
   };
   void scatterBlock(const Model& model, const Points& position, Points& force, Index block,
-                    Scratch& scratch);
+                    Scratch& scratch, bool withEnergy);
   /// scatterBlock for a block with no angle spring centred in it: every edge once.
   void radialOnlyBlock(const Model& model, const Points& position, Points& force, Index block,
-                       Scratch& scratch) const;
+                       Scratch& scratch, bool withEnergy);
 
   std::vector<Index> blockStart_{0};
   /// Chunks of at most chunkVertices_ consecutive vertices, per block (blockChunk_): their
@@ -177,6 +192,8 @@ class ForceKernel {
   std::vector<Index> incomingRow_, incomingHalo_, incomingBlock_;
   std::vector<double> halo_;
   std::vector<std::uint8_t> blockHasAngles_;
+  /// Per block the radial and the angular energy of the last scatter (energy()).
+  std::vector<double> blockEnergy_;
   VectorX edgeKappa_;
   /// The angle table lists every vertex's angles as the pairs (p < q) of its neighbours in
   /// neighbour order (buildAngleTable's layout): arms are found without a lookup.

@@ -35,6 +35,7 @@
 #include <array>
 #include <cstdint>
 #include <memory>
+#include <optional>
 #include <span>
 #include <string_view>
 #include <vector>
@@ -73,6 +74,11 @@ struct StepperOptions {
   /// one instruction where the baseline takes two). The same bits either way; off only to
   /// compare the two.
   bool wideKernels = true;
+  /// Default scheme: take the radial and angular energy at each step's end in the same pass
+  /// as the forces there (internalEnergy()), a few per cent more work in the step, which
+  /// spares a cycle's diagnostics an evaluation of every spring (about a fifth of a cycle on
+  /// large models; docs/performance.md). Simulation turns it on.
+  bool measureEnergy = false;
   /// Exact scheme: refuse models larger than this (dense eigendecomposition).
   Index exactMaxVertices = 4000;
   /// Threads for the step. 0 (automatic): one below kParallelMinVertices vertices; above,
@@ -138,6 +144,10 @@ class Stepper {
   /// Default scheme with filtersDrift(): the products with W the drift takes per step, the
   /// degree of Psi in T^2 W (2 to 4: the lowest whose fit holds at this period).
   [[nodiscard]] int driftProducts() const { return driftDegree_; }
+  /// Default scheme with StepperOptions::measureEnergy, when the internal forces at the end
+  /// of the last step are still cached (nothing invalidated them since): their radial and
+  /// angular energy, from the same pass (ForceKernel::energy). Otherwise nullopt.
+  [[nodiscard]] std::optional<PotentialEnergy> internalEnergy() const;
   /// Threads the last step used.
   [[nodiscard]] int threads() const { return threads_; }
   /// Bytes held by the stepper (matrices, caches, work buffers), for the memory report.
