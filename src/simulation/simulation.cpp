@@ -372,8 +372,10 @@ void Simulation::subCycle(const Points& start) {
   // The loads are held over the step: their work is F . dx exactly.
   if (!forces_.empty() || !torques_.empty())
     loadWork_ += (external_.array() * (state_.position - start).array()).sum();
-  // The plain cycle's stepper stepped state_ itself and nothing moved it since.
-  energyAtState_ = !rigidActive_ && constraints_.empty();
+  // Without rigid motion the cycle ends where the stepper's last step ended: the plain cycle
+  // steps state_ itself, a constrained one takes its last trial's positions (the velocity
+  // correction moves no vertex). The rigid motion moves them after the elastic step.
+  energyAtState_ = !rigidActive_;
 }
 
 void Simulation::computeBaseForce(const Points& position) {

@@ -139,11 +139,11 @@ class Simulation {
   /// left at the last finite one).
   void step();
 
-  /// Energy and momentum of the current state. After a plain elastic cycle (no rigid motion,
-  /// no constraints; default scheme) the radial and angular energy come from the step's own
-  /// force pass at the end position (Stepper::internalEnergy), which agrees with measure()'s
-  /// to rounding and costs the step a few per cent instead of a pass over every spring;
-  /// otherwise they are evaluated as measure() does.
+  /// Energy and momentum of the current state. After a cycle without rigid motion (default
+  /// scheme) the radial and angular energy come from the step's own force pass at the end
+  /// position (Stepper::internalEnergy), which agrees with measure()'s to rounding and costs
+  /// the step a few per cent instead of a pass over every spring; otherwise they are
+  /// evaluated as measure() does.
   [[nodiscard]] Diagnostics diagnostics() const;
   /// External forces applied during the last step of the last cycle (N x 3, torques as
   /// virtual forces).
@@ -217,7 +217,7 @@ class Simulation {
   Points baseForce_;  // internal + gravity at state_.position, when baseForceValid_
   bool baseForceValid_ = false;
   // The stepper's internal energy is that of state_.position and the current properties
-  // (set by a plain elastic cycle only; cleared by anything that moves the state or may
+  // (set by a cycle without rigid motion; cleared by anything that moves the state or may
   // change a property).
   bool energyAtState_ = false;
   Points totalForce_, loadForce_;  // work buffers
