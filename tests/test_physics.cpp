@@ -1170,6 +1170,72 @@ TEST(Stepper, ANewPeriodStepsAsAStepperBuiltForIt) {
   EXPECT_THROW(changed.setPeriod(0.0), InvalidInputError);
 }
 
+TEST(Stepper, ARewoundStepRetakenFromItsStartIsAFreshStepBitForBit) {
+  // A constrained cycle's second trial starts where the first did: rewind() gives the step
+  // back the start forces it kept. Retaken under other loads, from the same start, the step
+  // must equal one whose forces were evaluated afresh (invalidate()), for the drift filter
+  // (two trials under different loads) and the kick filter alone (both without: the first
+  // trial's end kick is cached, and must not be reused); in between, the stepper has no
+  // energy to offer and lastTotalForce() is the rewound step's start.
+  UniformProperties u;
+  u.angularStiffness = 0.2;
+  u.damping = 0.01;
+  u.gravity = Vec3(0.0, 0.0, -9.81);
+  const Model model = Model::fromMesh(makeTorus(40, 30), u);  // two blocks
+  const double dt = 0.8 * criticalPeriod(SystemMatrices(model));
+  const Index n = model.mesh.numVertices();
+  Points first = Points::Zero(n, 3), second = Points::Zero(n, 3), none = Points::Zero(n, 3);
+  first.row(3) << 0.5, 0.0, -0.2;
+  second.row(3) << 0.1, 0.3, 0.0;
+  for (bool drift : {true, false}) {
+    StepperOptions options;
+    options.driftFilter = drift;
+    options.measureEnergy = true;
+    options.threads = 2;
+    Stepper rewound(model, Scheme::Default, dt, options),
+        fresh(model, Scheme::Default, dt, options);
+    State a = perturbed(model, 0.05, 28);
+    for (int k = 0; k < 3; ++k) rewound.step(a, none);  // a cached start, as in a cycle
+    State b = a;
+    const State start = a;
+    fresh.step(b, none);  // any earlier step: its cache is dropped below
+    b = start;
+    const Points& trial = drift ? first : none;
+    rewound.step(a, trial);  // the first trial
+    ASSERT_TRUE(rewound.internalEnergy().has_value());
+    const Points firstEnd = a.position;
+    a = start;
+    rewound.rewind();
+    EXPECT_FALSE(rewound.internalEnergy().has_value()) << drift;
+    Points expected = Points::Zero(n, 3);
+    ForceKernel kernel(model, 1);
+    kernel.compute(model, start.position, expected, 1);
+    accumulateGravity(model.properties, start.position, expected);
+    expected += trial;
+    EXPECT_TRUE(rewound.lastTotalForce() == expected) << drift;
+    const Points& retrial = drift ? second : none;
+    rewound.step(a, retrial);  // the second trial
+    fresh.invalidate();
+    fresh.step(b, retrial);
+    EXPECT_TRUE(a.position == b.position) << "drift filter " << drift;
+    EXPECT_TRUE(a.velocity == b.velocity) << "drift filter " << drift;
+    if (drift) {
+      EXPECT_FALSE(a.position == firstEnd);
+    }
+    ASSERT_TRUE(rewound.internalEnergy().has_value());
+    EXPECT_EQ(rewound.internalEnergy()->angular, fresh.internalEnergy()->angular);
+    // Twice in a row there is nothing left to give back: the same as invalidate().
+    a = start;
+    b = start;
+    rewound.rewind();
+    rewound.rewind();
+    fresh.invalidate();
+    rewound.step(a, first);
+    fresh.step(b, first);
+    EXPECT_TRUE(a.position == b.position) << "drift filter " << drift;
+  }
+}
+
 TEST(Stepper, LastTotalForceIsTheTotalForceAtTheStartOfTheStep) {
   UniformProperties u;
   u.angularStiffness = 0.2;

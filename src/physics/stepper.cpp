@@ -286,8 +286,21 @@ void Stepper::rebuild() {
 std::optional<PotentialEnergy> Stepper::internalEnergy() const {
   // Only the default scheme ends a step with the forces at its end position (cacheValid_);
   // the kernel's last pass is that one.
-  if (scheme_ != Scheme::Default || !cacheValid_ || !options_.measureEnergy) return std::nullopt;
+  if (scheme_ != Scheme::Default || !cacheValid_ || rewound_ || !options_.measureEnergy)
+    return std::nullopt;
   return forces_.energy();
+}
+
+void Stepper::rewind() {
+  // A default step leaves its end forces in internal_ and its start forces in
+  // previousInternal_ (the swap at its end).
+  if (scheme_ != Scheme::Default || !cacheValid_ || rewound_) {
+    cacheValid_ = false;
+    return;
+  }
+  internal_.swap(previousInternal_);
+  rewound_ = true;
+  kickValid_ = false;  // the cached kick is the end's
 }
 
 size_t Stepper::bytes() const {
@@ -320,7 +333,7 @@ size_t Stepper::bytes() const {
 const Points& Stepper::lastTotalForce() const {
   if (!totalForceReady_) {
     // The last step had no external force: internal forces at its start plus gravity.
-    totalForce_ = previousInternal_;
+    totalForce_ = rewound_ ? internal_ : previousInternal_;
     const PhysicalProperties& p = model_.properties;
     if (!p.gravity.isZero()) {
       const Eigen::RowVector3d g = p.gravity.transpose();
@@ -709,6 +722,7 @@ void Stepper::stepDefault(State& s, const Points& external, std::span<const doub
   internal_.swap(previousInternal_);
   totalForceReady_ = !externalZero;
   cacheValid_ = true;
+  rewound_ = false;
   kickValid_ = share.empty() && externalZero;
 }
 
@@ -879,6 +893,7 @@ void Stepper::stepDriftFiltered(State& s, const Points& external, std::span<cons
   internal_.swap(previousInternal_);
   totalForceReady_ = !externalZero;
   cacheValid_ = true;
+  rewound_ = false;
   kickValid_ = share.empty() && externalZero;
 }
 

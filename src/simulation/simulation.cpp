@@ -403,8 +403,12 @@ void Simulation::runTrial(bool constrained, bool first) {
     trial_.time += t;
   } else {
     // The stepper caches internal forces at its last end positions; they are stale after
-    // the rigid motion moved the vertices or after an earlier trial of this cycle.
-    if (rigidActive_ || !first) stepper_->invalidate();
+    // the rigid motion moved the vertices. A later trial of this cycle starts where the
+    // earlier one did, whose start forces the stepper kept (rewind).
+    if (!first)
+      stepper_->rewind();
+    else if (rigidActive_)
+      stepper_->invalidate();
     if (rigidActive_)
       stepper_->step(trial_, *load, sigma_);
     else

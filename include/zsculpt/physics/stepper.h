@@ -124,6 +124,12 @@ class Stepper {
   void rebuild();
   /// Cached internal forces are stale (the state was changed from outside).
   void invalidate() { cacheValid_ = false; }
+  /// The state was set back to where the last step started (a constrained cycle's next trial
+  /// from the same start): the internal forces there, which that step kept, serve again
+  /// instead of being evaluated anew (about a fifth of a drag's cycle); the same bits either
+  /// way. Otherwise like invalidate() (a scheme other than default, no step since the last
+  /// invalidation, or a second rewind).
+  void rewind();
 
   [[nodiscard]] Scheme scheme() const { return scheme_; }
   [[nodiscard]] double period() const { return period_; }
@@ -212,6 +218,9 @@ class Stepper {
   // position when cacheValid_; previousInternal_ those at the start of the last step.
   Points internal_, previousInternal_, acceleration_, kick_, work1_, work2_, work3_, work4_;
   bool cacheValid_ = false;
+  // rewind() put the last step's start forces back in internal_ (previousInternal_ holds its
+  // end forces, whose energy the kernel still has).
+  bool rewound_ = false;
   // Default scheme: kick_ = (T/2) Phi a of the last step's end, valid for the next step's
   // start while the external forces stay zero and no elastic share is given.
   bool kickValid_ = false;
