@@ -133,8 +133,11 @@ inline double angleBeta(double s, double c, double rest, double& excess) {
   return excess * (denominator * inv);
 }
 
-// The first of `count` items in part `part` of `parts` equal contiguous parts (the parts of
-// potentialEnergy's and gravityEnergy's fixed-order sums).
+// potentialEnergy's and gravityEnergy's sums are taken in this many fixed contiguous parts,
+// added in part order: the same bits whatever the thread count.
+constexpr int kParts = 64;
+
+// The first of `count` items in part `part` of `parts` equal contiguous parts.
 inline Index partBegin(std::int64_t count, int part, int parts) {
   return static_cast<Index>(count * part / parts);
 }
@@ -320,7 +323,6 @@ PotentialEnergy potentialEnergy(const Model& model, const Points& position) {
   // in kParts fixed contiguous parts, the parts on all threads, then added in part order
   // (the same bits whatever the thread count), and within a part in batches whose square
   // roots and atan2s vectorise.
-  constexpr int kParts = 64;
   const Mesh& mesh = model.mesh;
   const PhysicalProperties& p = model.properties;
   const auto& angles = model.angles.angles;
@@ -378,7 +380,6 @@ PotentialEnergy potentialEnergy(const Model& model, const Points& position) {
 double gravityEnergy(const PhysicalProperties& properties, const Points& position) {
   // Zero gravity gives +0 term by term (0 - (+-0) is +0): skip the pass.
   if (properties.gravity.isZero(0.0)) return 0.0;
-  constexpr int kParts = 64;
   const std::int64_t vertices = position.rows();
   std::array<double, kParts> part{};
 #ifdef _OPENMP
