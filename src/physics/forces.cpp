@@ -33,8 +33,9 @@ inline double select(bool cond, double a, double b) {
                                (std::bit_cast<std::uint64_t>(b) & ~mask));
 }
 
-// The kernels below are built twice: for AVX2 (4 doubles at a time; chosen at load time
-// where the processor has it) and for the x86-64 baseline. Neither contracts to FMA and both
+// The kernels below are built three times: for AVX-512 (8 doubles at a time) and AVX2 (4),
+// each chosen at load time where the processor has it, and for the x86-64 baseline. None
+// contracts to FMA (forces.cpp is built with -ffp-contract=off, as AVX-512F has FMA), and all
 // do the same operations in the same order, so they round alike: the forces do not depend
 // on the machine's choice. forces.cpp is built without errno for the math functions
 // (CMakeLists.txt), so std::sqrt in a loop vectorises; other paths take theirs in a pass of
@@ -43,7 +44,7 @@ inline double select(bool cond, double a, double b) {
 #ifdef ZSCULPT_NO_TARGET_CLONES
 #define ZSCULPT_KERNEL
 #else
-#define ZSCULPT_KERNEL __attribute__((target_clones("avx2", "default")))
+#define ZSCULPT_KERNEL __attribute__((target_clones("avx512f", "avx2", "default")))
 #endif
 
 // atan2(s, c) for s >= 0 (the angle between two arms from |u x w| and u . w) in parts, so
