@@ -353,6 +353,63 @@ TEST(Forces, PotentialEnergyIsItsTermsSumOnAnyThreadCount) {
   EXPECT_NEAR(sums[0].gravity, serial.gravity, 1e-12 * gravityScale);
 }
 
+TEST(Diagnostics, KinematicsAreSummedInFixedPartsTheSameOnAnyThreadCount) {
+  // measureKinematics sums in fixed parts on all threads (every cycle's diagnostics take
+  // it): the same bits on one thread and on three, and the sums of one serial loop to
+  // rounding. A model off the origin, so that the angular momentum about the centre of mass
+  // differs from the one about the origin.
+  UniformProperties u;
+  const Model model = Model::fromMesh(makeTorus(200, 100), u);
+  State state = perturbed(model, 0.3, 41);
+  VectorX mass = model.properties.mass;
+  for (Index i = 0; i < state.position.rows(); ++i) {
+    state.position.row(i) += Eigen::RowVector3d(3.0, -1.0, 2.0);
+    state.velocity.row(i) += Eigen::RowVector3d(0.2, 0.1, -0.3);
+    mass[i] *= 1.0 + 0.5 * std::sin(0.37 * static_cast<double>(i));
+  }
+  Diagnostics serial;
+  Vec3 weighted = Vec3::Zero();
+  for (Index i = 0; i < state.position.rows(); ++i) {
+    const Vec3 v = state.velocity.row(i).transpose();
+    serial.kinetic += 0.5 * mass[i] * v.squaredNorm();
+    serial.momentum += mass[i] * v;
+    weighted += mass[i] * state.position.row(i).transpose();
+    serial.totalMass += mass[i];
+  }
+  const Vec3 centre = weighted / serial.totalMass;
+  double angularScale = 0.0;
+  for (Index i = 0; i < state.position.rows(); ++i) {
+    const Vec3 term = mass[i] * (Vec3(state.position.row(i).transpose()) - centre)
+                                    .cross(Vec3(state.velocity.row(i).transpose()));
+    serial.angularMomentum += term;
+    angularScale += term.norm();
+  }
+  std::vector<Diagnostics> sums;
+  for (int threads : {1, 3}) {
+#ifdef ZSCULPT_TEST_OPENMP
+    const int before = omp_get_max_threads();
+    omp_set_num_threads(threads);
+#else
+    (void)threads;
+#endif
+    sums.push_back(measureKinematics(mass, state));
+#ifdef ZSCULPT_TEST_OPENMP
+    omp_set_num_threads(before);
+#endif
+  }
+  EXPECT_EQ(sums[0].kinetic, sums[1].kinetic);
+  EXPECT_EQ(sums[0].totalMass, sums[1].totalMass);
+  EXPECT_TRUE(sums[0].momentum == sums[1].momentum);
+  EXPECT_TRUE(sums[0].centreOfMass == sums[1].centreOfMass);
+  EXPECT_TRUE(sums[0].angularMomentum == sums[1].angularMomentum);
+  EXPECT_NEAR(sums[0].kinetic, serial.kinetic, 1e-12 * serial.kinetic);
+  EXPECT_NEAR(sums[0].totalMass, serial.totalMass, 1e-12 * serial.totalMass);
+  EXPECT_LT((sums[0].momentum - serial.momentum).norm(), 1e-12 * serial.momentum.norm());
+  EXPECT_LT((sums[0].centreOfMass - centre).norm(), 1e-12 * centre.norm());
+  EXPECT_LT((sums[0].angularMomentum - serial.angularMomentum).norm(), 1e-12 * angularScale);
+  EXPECT_GT(serial.angularMomentum.norm(), 1e-6 * angularScale);
+}
+
 TEST(Diagnostics, APokeIsAGaussianBumpAlongItsDirectionWithZeroMomentum) {
   Model model = withAngles(makeTorus(24, 12), 0.8);
   model.properties.mass[5] = 3.0;  // unequal masses: the mean removed is mass-weighted

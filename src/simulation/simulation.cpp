@@ -148,6 +148,37 @@ void checkLoad(const TimedLoad& load, Index n, const char* what) {
     throw InvalidInputError(std::string(what) + ": ends before it starts");
 }
 
+// Whether every coordinate is finite, on `threads` threads for a large model (each cycle
+// checks the whole state; serial, that was a pass the other thread waited through).
+bool allFinite(const Points& x, int threads) {
+  const Eigen::Map<const VectorX> flat(x.data(), x.size());
+  constexpr int kParts = 8;
+  bool finite = true;
+  // clang-format off
+#pragma omp parallel for reduction(&& : finite) num_threads(threads) if (threads > 1 && flat.size() > 100000)
+  // clang-format on
+  for (int part = 0; part < kParts; ++part) {
+    const Index begin = flat.size() * part / kParts, end = flat.size() * (part + 1) / kParts;
+    finite = flat.segment(begin, end - begin).allFinite() && finite;
+  }
+  return finite;
+}
+
+// to = from, on `threads` threads for a large model (each cycle keeps the last good state).
+void copyPoints(const Points& from, Points& to, int threads) {
+  to.resize(from.rows(), 3);
+  const double* source = from.data();
+  double* target = to.data();
+  const Index n = from.size();
+  constexpr int kParts = 8;
+  // clang-format off
+#pragma omp parallel for num_threads(threads) if (threads > 1 && n > 100000)
+  // clang-format on
+  for (int part = 0; part < kParts; ++part)
+    std::copy(source + n * part / kParts, source + n * (part + 1) / kParts,
+              target + n * part / kParts);
+}
+
 }  // namespace
 
 void Simulation::addForce(const TimedLoad& force) {
@@ -233,6 +264,7 @@ void Simulation::removeConstraint(Index id) { constraints_.remove(id); }
 void Simulation::clearConstraints() {
   constraints_.clear();
   constraintForce_.setZero();
+  constraintForceZero_ = true;
 }
 
 std::vector<std::string> Simulation::takeWarnings() {
@@ -294,8 +326,8 @@ Diagnostics Simulation::diagnostics() const {
 void Simulation::step() {
   energyAtState_ = false;
   chooseSubsteps();
-  lastGood_.position = state_.position;
-  lastGood_.velocity = state_.velocity;
+  copyPoints(state_.position, lastGood_.position, stepper_->threads());
+  copyPoints(state_.velocity, lastGood_.velocity, stepper_->threads());
   lastGood_.time = state_.time;
   if (rigidActive_) {
     lastGoodMomentum_ = rigidMomentum_;
@@ -355,18 +387,28 @@ void Simulation::step() {
 }
 
 void Simulation::subCycle(const Points& start) {
-  gatherLoads(state_.time, state_.position, external_);
+  // Without loads external_ stays zero from cycle to cycle (and the constraint forces without
+  // constraints): on a large model, clearing them again every cycle was a pass of its own.
+  const bool loaded = !forces_.empty() || !torques_.empty();
+  if (loaded || !externalZero_) {
+    gatherLoads(state_.time, state_.position, external_);
+    externalZero_ = !loaded;
+  }
   if (!rigidActive_ && constraints_.empty()) {
     // The plain elastic cycle: nothing is split, nothing is constrained.
     stepper_->step(state_, external_);
-    constraintForce_.setZero();
+    if (!constraintForceZero_) {
+      constraintForce_.setZero();
+      constraintForceZero_ = true;
+    }
     baseForceValid_ = false;
     addToLedger(Vec3::Zero(), velocityDelta_);
   } else {
     coupledStep();
   }
-  if (!state_.position.allFinite() || !state_.velocity.allFinite() ||
-      !rigidMomentum_.linear.allFinite() || !rigidMomentum_.angular.allFinite())
+  if (!allFinite(state_.position, stepper_->threads()) ||
+      !allFinite(state_.velocity, stepper_->threads()) || !rigidMomentum_.linear.allFinite() ||
+      !rigidMomentum_.angular.allFinite())
     throw DivergenceError("the simulation diverged at t = " + std::to_string(state_.time) +
                           " s (the state became non-finite)");
   // The loads are held over the step: their work is F . dx exactly.
@@ -546,6 +588,7 @@ void Simulation::coupledStep() {
                       startElasticTorque_);
   }
   constraintForce_.setZero();
+  constraintForceZero_ = false;  // the constrained vertices' rows are written below
   report_ = ConstraintReport{};
   if (constrained) {
     const auto support = solver_.support();
@@ -632,13 +675,17 @@ void Simulation::addToLedger(const Vec3& centreHint, const Points& velocityDelta
   const double t = stepper_->period();
   const VectorX& mass = model_.properties.mass;
   const Points& start = lastGood_.position;
+  ledger_.gravity += t * mass.sum() * model_.properties.gravity;
+  // Loads are counted where there are any (external_ is known zero otherwise): the centre
+  // and the pass over the vertices are for them and for the constraints.
+  if (externalZero_ && constraints_.empty()) return;
   Vec3 centre = centreHint;
   if (!rigidActive_) {
     Vec3 weighted = Vec3::Zero();
     for (Index i = 0; i < start.rows(); ++i) weighted += mass[i] * start.row(i).transpose();
     centre = weighted / mass.sum();
   }
-  for (Index i = 0; i < start.rows(); ++i) {
+  for (Index i = 0; i < start.rows() && !externalZero_; ++i) {
     const Vec3 arm = start.row(i).transpose() - centre;
     const Vec3 load = external_.row(i).transpose();
     if (!load.isZero(0.0)) {
@@ -646,7 +693,6 @@ void Simulation::addToLedger(const Vec3& centreHint, const Points& velocityDelta
       ledger_.loadsAngular += t * arm.cross(load);
     }
   }
-  ledger_.gravity += t * mass.sum() * model_.properties.gravity;
   if (constraints_.empty()) return;
   Vec3 endCentre = Vec3::Zero();
   for (Index i = 0; i < state_.position.rows(); ++i)

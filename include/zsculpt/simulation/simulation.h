@@ -204,6 +204,7 @@ class Simulation {
   std::vector<TimedLoad> forces_;
   std::vector<TimedLoad> torques_;
   Points external_;
+  bool externalZero_ = true;  // external_ is all zero (no loads): a cycle need not clear it
   std::vector<Vec3> armBuffer_, forceBuffer_;
 
   // Semi-rigid motion (section 4.3).
@@ -236,6 +237,7 @@ class Simulation {
   std::uint64_t constraintRevision_ = 0;
   bool responseValid_ = false;
   Points constraintForce_;
+  bool constraintForceZero_ = true;  // constraintForce_ is all zero
   double constraintWork_ = 0.0;
   Points supportStart_, supportElastic_, velocityDelta_;
   std::vector<double> supportChi_;
