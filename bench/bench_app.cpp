@@ -51,11 +51,15 @@ void BM_AppSolverCycleDragging(benchmark::State& state) {
   const Vec3 start = session.state().position.row(0).transpose();
   session.apply(DragStart{0, start});
   double z = 0.0;
+  double steps = 0.0;
   for (auto _ : state) {
     z += 1e-3;
     session.apply(DragMove{start + Vec3(0, 0, z)});
     session.advance();
+    steps += session.simulation().substeps();
   }
+  // Steps per cycle: a fast drag splits the cycle (SimulationSettings::substepStrain).
+  state.counters["steps_per_cycle"] = steps / static_cast<double>(state.iterations());
 }
 BENCHMARK(BM_AppSolverCycleDragging)->Arg(40)->Arg(316)->Unit(benchmark::kMillisecond)->UseRealTime();
 
