@@ -179,6 +179,49 @@ void copyPoints(const Points& from, Points& to, int threads) {
               target + n * part / kParts);
 }
 
+// out = a + b, element by element, on `threads` threads for a large model.
+void addPoints(const Points& a, const Points& b, Points& out, int threads) {
+  out.resize(a.rows(), 3);
+  const double* x = a.data();
+  const double* y = b.data();
+  double* z = out.data();
+  const Index n = a.size();
+  // clang-format off
+#pragma omp parallel for num_threads(threads) if (threads > 1 && n > 100000)
+  // clang-format on
+  for (Index k = 0; k < n; ++k) z[k] = x[k] + y[k];
+}
+
+// The centre of mass sum_i m_i x_i / sum_i m_i, summed in 64 fixed parts (on `threads`
+// threads for a large model) and the parts added in order: the same bits on any thread count.
+Vec3 weightedCentre(const VectorX& mass, const Points& x, int threads) {
+  constexpr int kParts = 64;
+  std::array<Vec3, kParts> weighted;
+  std::array<double, kParts> total{};
+  const std::int64_t n = x.rows();
+  // clang-format off
+#pragma omp parallel for num_threads(threads) if (threads > 1 && n > 50000)
+  // clang-format on
+  for (int part = 0; part < kParts; ++part) {
+    Vec3 sum = Vec3::Zero();
+    double m = 0.0;
+    for (Index i = static_cast<Index>(n * part / kParts);
+         i < static_cast<Index>(n * (part + 1) / kParts); ++i) {
+      sum += mass[i] * x.row(i).transpose();
+      m += mass[i];
+    }
+    weighted[static_cast<size_t>(part)] = sum;
+    total[static_cast<size_t>(part)] = m;
+  }
+  Vec3 sum = Vec3::Zero();
+  double m = 0.0;
+  for (int part = 0; part < kParts; ++part) {
+    sum += weighted[static_cast<size_t>(part)];
+    m += total[static_cast<size_t>(part)];
+  }
+  return sum / m;
+}
+
 }  // namespace
 
 void Simulation::addForce(const TimedLoad& force) {
@@ -431,12 +474,13 @@ void Simulation::computeBaseForce(const Points& position) {
 
 void Simulation::runTrial(bool constrained, bool first) {
   const double t = stepper_->period();
-  trial_.position = elasticStart_.position;
-  trial_.velocity = elasticStart_.velocity;
+  const int threads = stepper_->threads();
+  copyPoints(elasticStart_.position, trial_.position, threads);
+  copyPoints(elasticStart_.velocity, trial_.velocity, threads);
   trial_.time = elasticStart_.time;
   const Points* load = &external_;
   if (constrained) {
-    loadForce_ = external_ + constraintForce_;
+    addPoints(external_, constraintForce_, loadForce_, threads);
     load = &loadForce_;
   }
   if (allRigid_) {
@@ -556,7 +600,8 @@ void Simulation::coupledStep() {
   const double t = stepper_->period();
   const VectorX& mass = model_.properties.mass;
   const bool constrained = !constraints_.empty();
-  if (constrained && constraints_.revision() != constraintRevision_) {
+  const bool supportChanged = constrained && constraints_.revision() != constraintRevision_;
+  if (supportChanged) {
     solver_.setUp(model_.mesh, constraints_);
     constraintRevision_ = constraints_.revision();
     responseValid_ = false;
@@ -574,8 +619,9 @@ void Simulation::coupledStep() {
     responseValid_ = true;
   }
 
-  elasticStart_.position = state_.position;
-  elasticStart_.velocity = rigidActive_ ? deformation_ : state_.velocity;
+  const int threads = stepper_->threads();
+  copyPoints(state_.position, elasticStart_.position, threads);
+  copyPoints(rigidActive_ ? deformation_ : state_.velocity, elasticStart_.velocity, threads);
   elasticStart_.time = state_.time;
   if (rigidActive_) {
     start_ = massProperties(mass, state_.position);
@@ -587,8 +633,12 @@ void Simulation::coupledStep() {
     weightedResultant(sigma_, state_.position, totalForce_, start_.centre, unused,
                       startElasticTorque_);
   }
-  constraintForce_.setZero();
-  constraintForceZero_ = false;  // the constrained vertices' rows are written below
+  // The constraint forces are zero outside the support, whose rows every trial writes (below):
+  // they need clearing only when the support changed, or without constraints.
+  if (!constraintForceZero_ && (!constrained || supportChanged)) {
+    constraintForce_.setZero();
+    constraintForceZero_ = true;
+  }
   report_ = ConstraintReport{};
   if (constrained) {
     const auto support = solver_.support();
@@ -614,6 +664,7 @@ void Simulation::coupledStep() {
       const Points& virtualForce = solver_.forces();
       for (size_t a = 0; a < support.size(); ++a)
         constraintForce_.row(support[a]) = virtualForce.row(static_cast<Index>(a));
+      constraintForceZero_ = false;
       runTrial(true, k == 0);
       report_.steps = k + 1;
       if (solver_.check(constraints_, trial_.position, positionTolerance,
@@ -638,8 +689,8 @@ void Simulation::coupledStep() {
   if (rigidActive_) {
     finishRigid();
   } else {
-    state_.position = trial_.position;
-    state_.velocity = trial_.velocity;
+    copyPoints(trial_.position, state_.position, threads);
+    copyPoints(trial_.velocity, state_.velocity, threads);
     baseForceValid_ = false;
   }
   state_.time = trial_.time;
@@ -679,12 +730,7 @@ void Simulation::addToLedger(const Vec3& centreHint, const Points& velocityDelta
   // Loads are counted where there are any (external_ is known zero otherwise): the centre
   // and the pass over the vertices are for them and for the constraints.
   if (externalZero_ && constraints_.empty()) return;
-  Vec3 centre = centreHint;
-  if (!rigidActive_) {
-    Vec3 weighted = Vec3::Zero();
-    for (Index i = 0; i < start.rows(); ++i) weighted += mass[i] * start.row(i).transpose();
-    centre = weighted / mass.sum();
-  }
+  const Vec3 centre = rigidActive_ ? centreHint : weightedCentre(mass, start, stepper_->threads());
   for (Index i = 0; i < start.rows() && !externalZero_; ++i) {
     const Vec3 arm = start.row(i).transpose() - centre;
     const Vec3 load = external_.row(i).transpose();
@@ -694,10 +740,7 @@ void Simulation::addToLedger(const Vec3& centreHint, const Points& velocityDelta
     }
   }
   if (constraints_.empty()) return;
-  Vec3 endCentre = Vec3::Zero();
-  for (Index i = 0; i < state_.position.rows(); ++i)
-    endCentre += mass[i] * state_.position.row(i).transpose();
-  endCentre /= mass.sum();
+  const Vec3 endCentre = weightedCentre(mass, state_.position, stepper_->threads());
   const auto support = solver_.support();
   for (size_t a = 0; a < support.size(); ++a) {
     // Pins' forces act over the whole cycle. A couple: the elastic stepper held it (its
