@@ -106,6 +106,21 @@ RunResult simulate(const Model& model, Scheme scheme, double dt, long steps, Sta
   return run;
 }
 
+// f() with the library's OpenMP loops on `threads` threads (where the tests can set it).
+template <class F>
+auto onThreads(int threads, F&& f) {
+#ifdef ZSCULPT_TEST_OPENMP
+  const int before = omp_get_max_threads();
+  omp_set_num_threads(threads);
+  auto result = f();
+  omp_set_num_threads(before);
+  return result;
+#else
+  (void)threads;
+  return f();
+#endif
+}
+
 State perturbed(const Model& model, double amplitude, unsigned seed) {
   State s = State::atRest(model.mesh);
   randomVelocity(model.properties.mass, amplitude, seed, s.velocity);
@@ -332,18 +347,8 @@ TEST(Forces, PotentialEnergyIsItsTermsSumOnAnyThreadCount) {
     gravityScale += std::abs(term);
   }
   std::vector<PotentialEnergy> sums;
-  for (int threads : {1, 3}) {
-#ifdef ZSCULPT_TEST_OPENMP
-    const int before = omp_get_max_threads();
-    omp_set_num_threads(threads);
-#else
-    (void)threads;
-#endif
-    sums.push_back(potentialEnergy(model, x));
-#ifdef ZSCULPT_TEST_OPENMP
-    omp_set_num_threads(before);
-#endif
-  }
+  for (int threads : {1, 3})
+    sums.push_back(onThreads(threads, [&] { return potentialEnergy(model, x); }));
   EXPECT_EQ(sums[0].radial, sums[1].radial);
   EXPECT_EQ(sums[0].angular, sums[1].angular);
   EXPECT_EQ(sums[0].gravity, sums[1].gravity);
@@ -385,18 +390,8 @@ TEST(Diagnostics, KinematicsAreSummedInFixedPartsTheSameOnAnyThreadCount) {
     angularScale += term.norm();
   }
   std::vector<Diagnostics> sums;
-  for (int threads : {1, 3}) {
-#ifdef ZSCULPT_TEST_OPENMP
-    const int before = omp_get_max_threads();
-    omp_set_num_threads(threads);
-#else
-    (void)threads;
-#endif
-    sums.push_back(measureKinematics(mass, state));
-#ifdef ZSCULPT_TEST_OPENMP
-    omp_set_num_threads(before);
-#endif
-  }
+  for (int threads : {1, 3})
+    sums.push_back(onThreads(threads, [&] { return measureKinematics(mass, state); }));
   EXPECT_EQ(sums[0].kinetic, sums[1].kinetic);
   EXPECT_EQ(sums[0].totalMass, sums[1].totalMass);
   EXPECT_TRUE(sums[0].momentum == sums[1].momentum);
