@@ -23,6 +23,7 @@
 #include "zsculpt/physics/forces.h"
 #include "zsculpt/physics/matrices.h"
 #include "zsculpt/physics/stepper.h"
+#include "zsculpt/physics/thread_tuner.h"
 
 using namespace zsculpt;
 
@@ -1019,6 +1020,94 @@ TEST(Threads, ForcesAndStepsAreBitIdenticalWhateverTheThreadCount) {
       EXPECT_TRUE(finals[k].velocity == finals[0].velocity) << schemeName(scheme);
     }
   }
+}
+
+namespace {
+
+// Steps a tuner for `seconds` of stepping, each step taking stepTime(threads); returns the
+// seconds spent at `few` threads.
+template <class StepTime>
+double runTuner(ThreadTuner& tuner, double seconds, int few, StepTime&& stepTime) {
+  double total = 0.0, atFew = 0.0;
+  while (total < seconds) {
+    const int threads = tuner.next();
+    const double t = stepTime(threads);
+    tuner.record(t);
+    total += t;
+    if (threads == few) atFew += t;
+  }
+  return atFew;
+}
+
+}  // namespace
+
+TEST(ThreadTuner, ProbesBothCountsThenHoldsTheFaster) {
+  ThreadTuner tuner(2, 1);
+  std::vector<int> probed;
+  for (int k = 0; k < 2 * ThreadTuner::kProbeSteps; ++k) {
+    ASSERT_TRUE(tuner.probing());
+    probed.push_back(tuner.next());
+    tuner.record(tuner.next() == 2 ? 0.010 : 0.009);  // one thread a little faster
+  }
+  EXPECT_EQ(std::count(probed.begin(), probed.end(), 2), ThreadTuner::kProbeSteps);
+  EXPECT_EQ(std::count(probed.begin(), probed.end(), 1), ThreadTuner::kProbeSteps);
+  EXPECT_FALSE(tuner.probing());
+  EXPECT_EQ(tuner.chosen(), 1);
+  EXPECT_EQ(tuner.next(), 1);
+  EXPECT_EQ(tuner.holdSeconds(), ThreadTuner::kHoldSeconds);
+}
+
+TEST(ThreadTuner, AClearWinnerIsProbedLessAndLessOften) {
+  // Two threads twice as fast as one (a 1M-vertex step here): each probe's four one-thread
+  // steps cost as much as eight held ones. Probing every two seconds spent 15 % of the time
+  // at one thread (0.4 s of every 2.6 s), losing 8 %; with the hold doubling up to 32 s,
+  // 2 % over the first 200 s, and 1.2 % from then on.
+  ThreadTuner tuner(2, 1);
+  std::vector<double> holds;
+  double atOne = 0.0, total = 0.0;
+  bool wasProbing = true;
+  while (total < 200.0) {
+    const int threads = tuner.next();
+    const double t = threads == 2 ? 0.05 : 0.10;
+    tuner.record(t);
+    total += t;
+    if (threads == 1) atOne += t;
+    if (wasProbing && !tuner.probing()) holds.push_back(tuner.holdSeconds());
+    wasProbing = tuner.probing();
+  }
+  ASSERT_GE(holds.size(), 6u);
+  const std::vector<double> expected{2.0, 4.0, 8.0, 16.0, 32.0, 32.0};
+  for (size_t k = 0; k < expected.size(); ++k) EXPECT_EQ(holds[k], expected[k]) << k;
+  EXPECT_EQ(tuner.chosen(), 2);
+  EXPECT_LT(atOne / total, 0.025);
+  EXPECT_GT(atOne, 0.0);
+}
+
+TEST(ThreadTuner, ACloseCallIsProbedOften) {
+  // Within a quarter of each other: the hold stays at two seconds.
+  ThreadTuner tuner(2, 1);
+  runTuner(tuner, 30.0, 1, [](int threads) { return threads == 2 ? 0.050 : 0.055; });
+  EXPECT_EQ(tuner.holdSeconds(), ThreadTuner::kHoldSeconds);
+  EXPECT_EQ(tuner.chosen(), 2);
+}
+
+TEST(ThreadTuner, AHeldCountThatSlowsDownIsProbedAgainAtOnce) {
+  // Another process takes the second core: two threads become five times slower than the
+  // probe found them. Within kSlowSteps steps the tuner probes and moves to one thread.
+  ThreadTuner tuner(2, 1);
+  runTuner(tuner, 100.0, 1, [](int threads) { return threads == 2 ? 0.05 : 0.10; });
+  ASSERT_FALSE(tuner.probing());
+  ASSERT_EQ(tuner.holdSeconds(), ThreadTuner::kMaxHoldSeconds);
+  auto busy = [](int threads) { return threads == 2 ? 0.25 : 0.10; };
+  for (int k = 0; k < ThreadTuner::kSlowSteps; ++k) {
+    ASSERT_FALSE(tuner.probing()) << k;
+    tuner.record(busy(tuner.next()));
+  }
+  EXPECT_TRUE(tuner.probing());
+  for (int k = 0; k < 2 * ThreadTuner::kProbeSteps; ++k) tuner.record(busy(tuner.next()));
+  EXPECT_FALSE(tuner.probing());
+  EXPECT_EQ(tuner.chosen(), 1);
+  EXPECT_EQ(tuner.holdSeconds(), ThreadTuner::kHoldSeconds);
 }
 
 TEST(Threads, TheDriftFilterIsBitIdenticalWhateverTheThreadCount) {

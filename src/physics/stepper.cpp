@@ -179,21 +179,6 @@ int automaticThreads(Index vertices) {
   return vertices >= kParallelMinVertices ? maximumThreads() : 1;
 }
 
-void Stepper::ThreadTuner::record(double seconds) {
-  if (phase < 2) {
-    best[phase] = count == 0 ? seconds : std::min(best[phase], seconds);
-    if (++count < kProbeSteps) return;
-    count = 0;
-    if (++phase == 2) {
-      chosen = best[1] < best[0] ? candidates[1] : candidates[0];
-      held = 0.0;
-    }
-    return;
-  }
-  held += seconds;
-  if (held >= kHoldSeconds) phase = 0;
-}
-
 Stepper::Stepper(const Model& model, Scheme scheme, double period, const StepperOptions& options)
     : model_(model), scheme_(scheme), period_(period), options_(options), system_(model) {
   if (!(period > 0.0) || !std::isfinite(period))
@@ -202,8 +187,7 @@ Stepper::Stepper(const Model& model, Scheme scheme, double period, const Stepper
   const int most = options.threads > 0 ? options.threads : automaticThreads(n);
   threads_ = most;
   tuning_ = options.threads <= 0 && most > 1;
-  tuner_.candidates[0] = most;
-  tuner_.candidates[1] = 1;
+  tuner_ = ThreadTuner(most, 1);
   forces_ = ForceKernel(model, most);
   for (Points* p : {&internal_, &previousInternal_, &acceleration_, &kick_, &totalForce_})
     p->setZero(n, 3);

@@ -43,6 +43,7 @@
 #include "zsculpt/physics/forces.h"
 #include "zsculpt/physics/matrices.h"
 #include "zsculpt/physics/properties.h"
+#include "zsculpt/physics/thread_tuner.h"
 
 namespace zsculpt {
 
@@ -194,22 +195,8 @@ class Stepper {
   double period_;
   StepperOptions options_;
   int threads_ = 1;
-  // Automatic thread count: probes kProbeSteps steps with each candidate, keeps the faster
-  // (smallest step time) for kHoldSeconds of stepping, then probes again.
-  struct ThreadTuner {
-    static constexpr int kProbeSteps = 4;
-    static constexpr double kHoldSeconds = 2.0;
-    int candidates[2] = {1, 1};
-    double best[2] = {0.0, 0.0};
-    int phase = 0;  // 0, 1: probing candidates[phase]; 2: holding `chosen`
-    int count = 0;
-    int chosen = 1;
-    double held = 0.0;
-    [[nodiscard]] int next() const { return phase < 2 ? candidates[phase] : chosen; }
-    void record(double seconds);
-  };
-  bool tuning_ = false;
-  ThreadTuner tuner_;
+  bool tuning_ = false;  // automatic thread count (thread_tuner.h)
+  ThreadTuner tuner_{1, 1};
   SystemMatrices system_;
   std::unique_ptr<TransformationMatrices> transformation_;
   ForceKernel forces_;
