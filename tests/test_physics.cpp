@@ -1164,6 +1164,56 @@ TEST(Stepper, TheKeptFirstKickIsTheOneTheStepWouldMake) {
   }
 }
 
+TEST(Stepper, TheKeptFirstKickStaysWhileTheLoadsAreTheSameBits) {
+  // The kick is also kept while the loads are the last step's bits (a held force, or a drag's
+  // first trial, which starts from the last trial's constraint forces). Kept, or made afresh
+  // every step, the same bits. Loads that appear, change, vanish or differ only in a zero's
+  // sign are never taken for the same.
+  Model model = withAngles(makeTorus(200, 100), 0.3, 0.01, 9.5);
+  model.properties.damping.setConstant(0.02);
+  model.properties.gravity = Vec3(0.0, 0.0, -9.81);
+  const double dt = 0.5 * criticalPeriod(SystemMatrices(model));
+  const Index n = model.mesh.numVertices();
+  auto loadAt = [n](int k) {
+    Points e = Points::Zero(n, 3);
+    if (k >= 2 && k < 5) e.row(17) << 0.5, 0.0, -0.2;   // steady for three steps
+    if (k >= 5 && k < 8) e.row(17) << 0.5, 0.0, -0.25;  // changed, then steady
+    if (k == 8) {
+      e.row(17) << 0.5, 0.0, -0.25;
+      e(15000, 1) = -0.0;  // only a zero's sign differs from step 7
+    }
+    if (k >= 9 && k < 11) e(15000, 1) = -0.0;  // no load but a negative zero: none applied
+    return e;
+  };
+  // Kept: not at the first step (nothing cached), nor where the loads appear (2), change (5),
+  // differ in a zero's sign (8) or vanish (9); at 10 and on no loads are applied, as at 9.
+  const std::vector<bool> expectKept{false, true,  false, true, true, false, true,
+                                     true,  false, false, true, true, true};
+  for (bool drift : {true, false}) {
+    std::vector<State> finals;
+    for (bool afresh : {false, true}) {
+      StepperOptions options;
+      options.threads = 2;
+      options.driftFilter = drift;
+      Stepper stepper(model, Scheme::Default, dt, options);
+      State s = perturbed(model, 0.05, 29);
+      for (int k = 0; k < static_cast<int>(expectKept.size()); ++k) {
+        if (afresh) stepper.invalidate();
+        const Points load = loadAt(k);
+        stepper.step(s, load);
+        if (!afresh)
+          EXPECT_EQ(stepper.keptKick(), expectKept[static_cast<size_t>(k)])
+              << "drift filter " << drift << ", step " << k;
+        else
+          EXPECT_FALSE(stepper.keptKick());
+      }
+      finals.push_back(s);
+    }
+    EXPECT_TRUE(finals[1].position == finals[0].position) << "drift filter " << drift;
+    EXPECT_TRUE(finals[1].velocity == finals[0].velocity) << "drift filter " << drift;
+  }
+}
+
 TEST(Stepper, TheWideRowKernelsGiveTheBaselinesBits) {
   // The AVX2 row kernels do each coordinate's operations in the baseline's order, without
   // FMA: the same bits, with loads on and off, damping, and several blocks on two threads,

@@ -5,6 +5,7 @@
 #include <chrono>
 #include <cmath>
 #include <cstdint>
+#include <cstring>
 #include <limits>
 #include <string>
 #include <type_traits>
@@ -110,13 +111,18 @@ constexpr DriftFit kDriftFits[] = {
     {16.0, 3, {-0.181526, 0.0302534, -0.00126054}},  // within 2.6 %; and beyond 16
 };
 
-bool rowsAreZero(const Points& x, Index begin, Index end) {
-  // The bits of every value but its sign, or-ed together (vectorises; NaN is not zero).
+// The bits of every value of rows [begin, end), or-ed together (vectorises): zero when all
+// are +0; zero but for the sign bit when all are zeros of either sign (NaN is not zero).
+std::uint64_t rowBits(const Points& x, Index begin, Index end) {
   const double* p = x.data() + 3 * static_cast<size_t>(begin);
   const size_t count = 3 * static_cast<size_t>(end - begin);
   std::uint64_t bits = 0;
-  for (size_t k = 0; k < count; ++k) bits |= std::bit_cast<std::uint64_t>(p[k]) << 1;
-  return bits == 0;
+  for (size_t k = 0; k < count; ++k) bits |= std::bit_cast<std::uint64_t>(p[k]);
+  return bits;
+}
+
+bool rowsAreZero(const Points& x, Index begin, Index end) {
+  return (rowBits(x, begin, end) << 1) == 0;
 }
 
 // The acceleration of one vertex as accelerationRows makes it, a_j = sigma_j M_j^-1
@@ -199,7 +205,7 @@ Stepper::Stepper(const Model& model, Scheme scheme, double period, const Stepper
     setUpAffine({});
     boundSpectrum({});
   }
-  externalZero_.assign(static_cast<size_t>(forces_.numBlocks()), 1);
+  resetLoadRecord();
   dampHalf_.resize(n);
   dampFull_.resize(n);
   refreshDamping({});
@@ -257,6 +263,7 @@ void Stepper::rebuild() {
   if (transformation_) *transformation_ = TransformationMatrices(system_, period_);
   if (scheme_ == Scheme::Exact) setUpExact();
   forces_.rebuild(model_);
+  resetLoadRecord();
   if (scheme_ == Scheme::Default && options_.driftFilter) {
     affinePartial_.assign(24 * static_cast<size_t>(forces_.numBlocks()), 0.0);
     setUpAffine({});
@@ -295,7 +302,8 @@ size_t Stepper::bytes() const {
   auto dense = [](const auto& m) { return static_cast<size_t>(m.size()) * sizeof(double); };
   size_t total = sparse(system_.stiffness()) + sparse(system_.omega2()) +
                  dense(system_.inverseMass()) + dense(system_.dampingCoefficient()) +
-                 forces_.bytes() + dense(dampHalf_) + dense(dampFull_) + externalZero_.size();
+                 forces_.bytes() + dense(dampHalf_) + dense(dampFull_) + dense(lastExternal_) +
+                 externalZero_.size() + externalExactZero_.size() + externalSame_.size();
   for (const Points* p :
        std::initializer_list<const Points*>{&internal_, &previousInternal_, &acceleration_, &kick_,
                                             &totalForce_, &work1_, &work2_, &work3_, &work4_})
@@ -316,8 +324,17 @@ size_t Stepper::bytes() const {
 
 const Points& Stepper::lastTotalForce() const {
   if (!totalForceReady_) {
-    // The last step had no external force: internal forces at its start plus gravity.
+    // Internal forces at the last step's start, its loads and gravity, in the order of
+    // accelerationRow: (F + F_ext) + mu g.
     totalForce_ = rewound_ ? internal_ : previousInternal_;
+    if (!loadsZero_)
+      for (Index b = 0; b < forces_.numBlocks(); ++b) {
+        const Index begin = forces_.blockBegin(b), rows = forces_.blockEnd(b) - begin;
+        if (externalExactZero_[static_cast<size_t>(b)])
+          totalForce_.middleRows(begin, rows).array() += 0.0;
+        else
+          totalForce_.middleRows(begin, rows) += lastExternal_.middleRows(begin, rows);
+      }
     const PhysicalProperties& p = model_.properties;
     if (!p.gravity.isZero()) {
       const Eigen::RowVector3d g = p.gravity.transpose();
@@ -567,16 +584,45 @@ VectorX Stepper::filteredPositionColumn(Index l) const {
   return phi + t2 * apply(w);
 }
 
-bool Stepper::markZeroExternalBlocks(const Points& external) {
-  // Inside the step's parallel region: every thread returns the same answer.
+void Stepper::resetLoadRecord() {
+  const size_t blocks = static_cast<size_t>(forces_.numBlocks());
+  externalZero_.assign(blocks, 1);
+  externalExactZero_.assign(blocks, 1);
+  externalSame_.assign(blocks, 1);
+  // Only the default scheme keeps its kick (markZeroExternalBlocks).
+  lastExternal_.setZero(scheme_ == Scheme::Default ? model_.mesh.numVertices() : 0, 3);
+  loadsZero_ = true;
+}
+
+Stepper::LoadCheck Stepper::markZeroExternalBlocks(const Points& external) {
+  // Inside the step's parallel region: every thread returns the same answer. A block whose
+  // loads were not all +0 keeps its rows in lastExternal_ for the next call's comparison:
+  // most blocks of a loaded model have none, so this is a pass over the loaded ones only.
   const Index blocks = forces_.numBlocks();
 #pragma omp for schedule(static)
-  for (Index b = 0; b < blocks; ++b)
-    externalZero_[static_cast<size_t>(b)] =
-        rowsAreZero(external, forces_.blockBegin(b), forces_.blockEnd(b)) ? 1 : 0;
-  bool zero = true;
-  for (Index b = 0; b < blocks; ++b) zero = zero && externalZero_[static_cast<size_t>(b)];
-  return zero;
+  for (Index b = 0; b < blocks; ++b) {
+    const size_t k = static_cast<size_t>(b);
+    const Index begin = forces_.blockBegin(b), end = forces_.blockEnd(b);
+    const std::uint64_t bits = rowBits(external, begin, end);
+    const bool exactZero = bits == 0;
+    externalZero_[k] = (bits << 1) == 0 ? 1 : 0;
+    bool same = externalExactZero_[k] != 0;
+    if (!exactZero) {
+      const size_t first = 3 * static_cast<size_t>(begin);
+      const size_t bytes = 3 * static_cast<size_t>(end - begin) * sizeof(double);
+      same = !externalExactZero_[k] &&
+             std::memcmp(external.data() + first, lastExternal_.data() + first, bytes) == 0;
+      if (!same) std::memcpy(lastExternal_.data() + first, external.data() + first, bytes);
+    }
+    externalExactZero_[k] = exactZero ? 1 : 0;
+    externalSame_[k] = same ? 1 : 0;
+  }
+  LoadCheck check;
+  for (Index b = 0; b < blocks; ++b) {
+    check.zero = check.zero && externalZero_[static_cast<size_t>(b)];
+    check.same = check.same && externalSame_[static_cast<size_t>(b)];
+  }
+  return check;
 }
 
 void Stepper::stepDefault(State& s, const Points& external, std::span<const double> share) {
@@ -588,11 +634,12 @@ void Stepper::stepDefault(State& s, const Points& external, std::span<const doub
   // fly inside the filter's product (a_j = sigma_j M_j^-1 ((F_j + F_ext,j) + mu_j g), the
   // same expression as accelerationRows) instead of being stored and read back. The first
   // kick equals the last step's second one while nothing but the position changed (same
-  // internal forces, zero external forces, no share): it is kept in kick_.
+  // internal forces, the same external forces, no share): it is kept in kick_.
   const double t = period_, half = 0.5 * t, filter = t * t * t / 24.0;
   const Index blocks = forces_.numBlocks();
   const bool startCached = cacheValid_;
   const bool reuseCandidate = cacheValid_ && kickValid_ && share.empty();
+  const bool lastLoadsZero = loadsZero_;
   const SparseRowMatrix& o2 = system_.omega2();
   const Index* outer = o2.outerIndexPtr();
   const Index* inner = o2.innerIndexPtr();
@@ -613,11 +660,14 @@ void Stepper::stepDefault(State& s, const Points& external, std::span<const doub
   in.inner = inner;
   in.value = value;
   in.dampHalf = dampHalf_.data();
-  bool externalZero = true;
+  bool externalZero = true, reused = false;
 #pragma omp parallel num_threads(threads_) if (threads_ > 1)
   {
-    const bool zero = markZeroExternalBlocks(external);
-    const bool reuse = reuseCandidate && zero;
+    const LoadCheck loads = markZeroExternalBlocks(external);
+    const bool zero = loads.zero;
+    // The kept kick is the last step's second one, made with its loads: valid while these are
+    // the same (no loads then and now, or the same bits).
+    const bool reuse = reuseCandidate && (zero ? lastLoadsZero : !lastLoadsZero && loads.same);
     // (T/2) Phi a at row i: (T/2) a_i - (T^3/24) (Omega^2 a)_i, with a_j from the internal
     // forces f (and the total force on the way).
     const AccelerationInputs inputs{e, mass, inverseMass, share, g};
@@ -699,15 +749,21 @@ void Stepper::stepDefault(State& s, const Points& external, std::span<const doub
       });
     }
 #pragma omp single
-    externalZero = zero;
+    {
+      externalZero = zero;
+      reused = reuse;
+    }
   }
   // previousInternal_ now holds the forces at the new position: swap the two buffers. The
-  // total force at the start was written with loads, else it is made on demand.
+  // total force at the start was written with loads and a fresh first kick, else it is made
+  // on demand.
   internal_.swap(previousInternal_);
-  totalForceReady_ = !externalZero;
+  totalForceReady_ = !externalZero && !reused;
+  keptKick_ = reused;
   cacheValid_ = true;
   rewound_ = false;
-  kickValid_ = share.empty() && externalZero;
+  kickValid_ = share.empty();
+  loadsZero_ = externalZero;
 }
 
 void Stepper::stepDriftFiltered(State& s, const Points& external, std::span<const double> share) {
@@ -723,13 +779,14 @@ void Stepper::stepDriftFiltered(State& s, const Points& external, std::span<cons
   // c = G^-1 B^T M u, d = G^-1 (B^T K u - C c). The partial sums are added in block order
   // by one thread, so the result does not depend on the thread count. The first kick
   // equals the last step's second one while nothing but the position changed (same
-  // internal forces, zero external forces, no share): it is kept in kick_.
+  // internal forces, the same external forces, no share): it is kept in kick_.
   const int degree = driftDegree_;
   const double* psi = driftA_.data();  // Psi's coefficients a_k at psi[k]
   const double t = period_, half = 0.5 * t, t2 = t * t, filter = t * t * t / 24.0;
   const Index blocks = forces_.numBlocks();
   const bool startCached = cacheValid_;
   const bool reuseCandidate = cacheValid_ && kickValid_ && share.empty();
+  const bool lastLoadsZero = loadsZero_;
   const SparseRowMatrix& o2 = system_.omega2();
   const double* inverseMass = system_.inverseMass().data();
   const double* mass = model_.properties.mass.data();
@@ -752,11 +809,14 @@ void Stepper::stepDriftFiltered(State& s, const Points& external, std::span<cons
       o2.outerIndexPtr(), o2.innerIndexPtr(), o2.valuePtr(), affineBasis_.data(),
       omegaBasis_.data(), massBases,          mass,          coefficient,
       dampHalf_.data()};
-  bool externalZero = true;
+  bool externalZero = true, reused = false;
 #pragma omp parallel num_threads(threads_) if (threads_ > 1)
   {
-    const bool zero = markZeroExternalBlocks(external);
-    const bool reuse = reuseCandidate && zero;
+    const LoadCheck loads = markZeroExternalBlocks(external);
+    const bool zero = loads.zero;
+    // The kept kick is the last step's second one, made with its loads: valid while these are
+    // the same (no loads then and now, or the same bits).
+    const bool reuse = reuseCandidate && (zero ? lastLoadsZero : !lastLoadsZero && loads.same);
     const AccelerationInputs inputs{e, mass, inverseMass, share, g};
     auto withCase = [&](auto&& body) { withLoadCase(!zero, gravity, !share.empty(), body); };
     auto blockPartial = [&](Index b) { return partial + 24 * static_cast<size_t>(b); };
@@ -870,15 +930,21 @@ void Stepper::stepDriftFiltered(State& s, const Points& external, std::span<cons
     forces_.scatter(model_, s.position, previousInternal_, options_.measureEnergy);
     filteredKick(previousInternal_.data(), nullptr, true);
 #pragma omp single
-    externalZero = zero;
+    {
+      externalZero = zero;
+      reused = reuse;
+    }
   }
   // previousInternal_ now holds the forces at the new position: swap the two buffers. The
-  // total force at the start was written with loads, else it is made on demand.
+  // total force at the start was written with loads and a fresh first kick, else it is made
+  // on demand.
   internal_.swap(previousInternal_);
-  totalForceReady_ = !externalZero;
+  totalForceReady_ = !externalZero && !reused;
+  keptKick_ = reused;
   cacheValid_ = true;
   rewound_ = false;
-  kickValid_ = share.empty() && externalZero;
+  kickValid_ = share.empty();
+  loadsZero_ = externalZero;
 }
 
 void Stepper::stepPaper(State& s, const Points& external, std::span<const double> share) {

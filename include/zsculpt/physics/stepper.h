@@ -157,6 +157,9 @@ class Stepper {
   [[nodiscard]] std::optional<PotentialEnergy> internalEnergy() const;
   /// Threads the last step used.
   [[nodiscard]] int threads() const { return threads_; }
+  /// Default scheme: whether the last step kept its first kick from the step before (the
+  /// same position, loads of the same bits, no share) instead of making it afresh.
+  [[nodiscard]] bool keptKick() const { return keptKick_; }
   /// Bytes held by the stepper (matrices, caches, work buffers), for the memory report.
   [[nodiscard]] size_t bytes() const;
 
@@ -170,8 +173,14 @@ class Stepper {
                            std::span<const double> elasticShare);
   void refreshDamping(std::span<const Index> vertices);
   // Inside the step's parallel region: marks externalZero_ per block and returns whether all
-  // of the external forces are zero.
-  bool markZeroExternalBlocks(const Points& external);
+  // of the external forces are zero, and whether they are the last call's, bit for bit.
+  struct LoadCheck {
+    bool zero = true;
+    bool same = true;
+  };
+  LoadCheck markZeroExternalBlocks(const Points& external);
+  // Forgets the last step's loads (a new block layout).
+  void resetLoadRecord();
   void stepDefault(State& s, const Points& external, std::span<const double> share);
   // The default scheme with StepperOptions::driftFilter on a braced model.
   void stepDriftFiltered(State& s, const Points& external, std::span<const double> share);
@@ -209,14 +218,21 @@ class Stepper {
   // end forces, whose energy the kernel still has).
   bool rewound_ = false;
   // Default scheme: kick_ = (T/2) Phi a of the last step's end, valid for the next step's
-  // start while the external forces stay zero and no elastic share is given.
+  // start while the external forces stay the same bits (zero, or steady loads: a held force,
+  // or a drag's first trial, which starts from the last trial's constraint forces) and no
+  // elastic share is given.
   bool kickValid_ = false;
+  bool keptKick_ = false;
   // Per vertex: exp(-g T) (half a step of damping, default scheme) and exp(-2 g T).
   VectorX dampHalf_, dampFull_;
-  // Per block: are the external forces of its rows zero.
-  std::vector<std::uint8_t> externalZero_;
-  // lastTotalForce(): written by the step, or made on demand from previousInternal_ and
-  // gravity when the last step had no external force.
+  // Per block: are the external forces of its rows zero (a zero's sign aside: such loads are
+  // not applied); were they all +0 at the last step (else lastExternal_ holds its rows); are
+  // they the last step's, bit for bit. loadsZero_: the last step applied no loads.
+  std::vector<std::uint8_t> externalZero_, externalExactZero_, externalSame_;
+  Points lastExternal_;
+  bool loadsZero_ = true;
+  // lastTotalForce(): written by the step, or made on demand from previousInternal_, the
+  // last step's loads and gravity when the step kept its first kick or had no loads.
   mutable Points totalForce_;
   mutable bool totalForceReady_ = true;
 
