@@ -1136,42 +1136,15 @@ TEST(Threads, TheDriftFilterIsBitIdenticalWhateverTheThreadCount) {
 }
 
 TEST(Stepper, TheKeptFirstKickIsTheOneTheStepWouldMake) {
-  // Without loads the step keeps its first kick from the last one; made afresh (here after
-  // invalidate(), as after any outside change), the drift filter's first kick also updates
-  // and sums the velocity in its own pass. Both ways give the same bits, with damping.
+  // The step keeps its first kick from the last one while nothing but the position changed:
+  // no loads, or loads of the last step's bits (a held force, or a drag's first trial, which
+  // starts from the last trial's constraint forces). Made afresh (here after invalidate(), as
+  // after any outside change), the drift filter's first kick also updates and sums the
+  // velocity in its own pass. Both ways give the same bits, with damping, with and without
+  // gravity. Loads that appear, change, vanish or differ only in a zero's sign are never
+  // taken for the same.
   Model model = withAngles(makeTorus(200, 100), 0.3, 0.01, 9.5);
   model.properties.damping.setConstant(0.02);
-  const double dt = 0.5 * criticalPeriod(SystemMatrices(model));
-  const Points external = Points::Zero(model.mesh.numVertices(), 3);
-  for (bool drift : {true, false}) {
-    std::vector<State> finals;
-    for (bool afresh : {false, true}) {
-      StepperOptions options;
-      options.threads = 2;
-      options.driftFilter = drift;
-      Stepper stepper(model, Scheme::Default, dt, options);
-      ASSERT_EQ(stepper.filtersDrift(), drift);
-      State s = perturbed(model, 0.05, 28);
-      for (int k = 0; k < 10; ++k) {
-        if (afresh) stepper.invalidate();
-        stepper.step(s, external);
-      }
-      finals.push_back(s);
-    }
-    EXPECT_TRUE(finals[1].position == finals[0].position) << "drift filter " << drift;
-    EXPECT_TRUE(finals[1].velocity == finals[0].velocity) << "drift filter " << drift;
-    EXPECT_FALSE(finals[0].velocity == perturbed(model, 0.05, 28).velocity);
-  }
-}
-
-TEST(Stepper, TheKeptFirstKickStaysWhileTheLoadsAreTheSameBits) {
-  // The kick is also kept while the loads are the last step's bits (a held force, or a drag's
-  // first trial, which starts from the last trial's constraint forces). Kept, or made afresh
-  // every step, the same bits. Loads that appear, change, vanish or differ only in a zero's
-  // sign are never taken for the same.
-  Model model = withAngles(makeTorus(200, 100), 0.3, 0.01, 9.5);
-  model.properties.damping.setConstant(0.02);
-  model.properties.gravity = Vec3(0.0, 0.0, -9.81);
   const double dt = 0.5 * criticalPeriod(SystemMatrices(model));
   const Index n = model.mesh.numVertices();
   auto loadAt = [n](int k) {
@@ -1189,28 +1162,29 @@ TEST(Stepper, TheKeptFirstKickStaysWhileTheLoadsAreTheSameBits) {
   // differ in a zero's sign (8) or vanish (9); at 10 and on no loads are applied, as at 9.
   const std::vector<bool> expectKept{false, true,  false, true, true, false, true,
                                      true,  false, false, true, true, true};
-  for (bool drift : {true, false}) {
-    std::vector<State> finals;
-    for (bool afresh : {false, true}) {
-      StepperOptions options;
-      options.threads = 2;
-      options.driftFilter = drift;
-      Stepper stepper(model, Scheme::Default, dt, options);
-      State s = perturbed(model, 0.05, 29);
-      for (int k = 0; k < static_cast<int>(expectKept.size()); ++k) {
-        if (afresh) stepper.invalidate();
-        const Points load = loadAt(k);
-        stepper.step(s, load);
-        if (!afresh)
-          EXPECT_EQ(stepper.keptKick(), expectKept[static_cast<size_t>(k)])
-              << "drift filter " << drift << ", step " << k;
-        else
-          EXPECT_FALSE(stepper.keptKick());
+  for (bool gravity : {false, true}) {
+    model.properties.gravity = gravity ? Vec3(0.0, 0.0, -9.81) : Vec3::Zero();
+    for (bool drift : {true, false}) {
+      std::vector<State> finals;
+      for (bool afresh : {false, true}) {
+        StepperOptions options;
+        options.threads = 2;
+        options.driftFilter = drift;
+        Stepper stepper(model, Scheme::Default, dt, options);
+        ASSERT_EQ(stepper.filtersDrift(), drift);
+        State s = perturbed(model, 0.05, 28);
+        for (int k = 0; k < static_cast<int>(expectKept.size()); ++k) {
+          if (afresh) stepper.invalidate();
+          stepper.step(s, loadAt(k));
+          EXPECT_EQ(stepper.keptKick(), !afresh && expectKept[static_cast<size_t>(k)])
+              << "gravity " << gravity << ", drift filter " << drift << ", step " << k;
+        }
+        finals.push_back(s);
       }
-      finals.push_back(s);
+      EXPECT_TRUE(finals[1].position == finals[0].position) << "drift filter " << drift;
+      EXPECT_TRUE(finals[1].velocity == finals[0].velocity) << "drift filter " << drift;
+      EXPECT_FALSE(finals[0].velocity == perturbed(model, 0.05, 28).velocity);
     }
-    EXPECT_TRUE(finals[1].position == finals[0].position) << "drift filter " << drift;
-    EXPECT_TRUE(finals[1].velocity == finals[0].velocity) << "drift filter " << drift;
   }
 }
 
