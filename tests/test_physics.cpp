@@ -1424,3 +1424,29 @@ TEST(Stepper, LastTotalForceIsTheTotalForceAtTheStartOfTheStep) {
     }
   }
 }
+
+TEST(Stepper, ARebuildKeepsTheLastTotalForceOfAStepThatKeptItsKickUnderLoads) {
+  // Such a step makes its total force on demand from its record of the loads, which
+  // rebuild() resets: the total is made before.
+  UniformProperties u;
+  u.angularStiffness = 0.2;
+  const Model model = Model::fromMesh(makeTorus(12, 8), u);
+  const double dt = 0.3 * criticalPeriod(SystemMatrices(model));
+  for (bool drift : {true, false}) {
+    StepperOptions options;
+    options.driftFilter = drift;
+    Stepper stepper(model, Scheme::Default, dt, options);
+    State s = perturbed(model, 0.05, 27);
+    Points external = Points::Zero(model.mesh.numVertices(), 3);
+    external.row(4) << 1.0, 2.0, 3.0;
+    stepper.step(s, external);
+    ForceKernel kernel(model, 1);
+    Points expected(model.mesh.numVertices(), 3);
+    kernel.compute(model, s.position, expected, 1);
+    expected += external;
+    stepper.step(s, external);
+    ASSERT_TRUE(stepper.keptKick()) << "drift filter " << drift;
+    stepper.rebuild();
+    EXPECT_TRUE(stepper.lastTotalForce() == expected) << "drift filter " << drift;
+  }
+}

@@ -259,6 +259,9 @@ void Stepper::setPeriod(double period) {
 }
 
 void Stepper::rebuild() {
+  // The last step's total force is made on demand from the record of its loads, which the
+  // rebuild resets: make it now.
+  if (!totalForceReady_) (void)lastTotalForce();
   system_ = SystemMatrices(model_);
   if (transformation_) *transformation_ = TransformationMatrices(system_, period_);
   if (scheme_ == Scheme::Exact) setUpExact();

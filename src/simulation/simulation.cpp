@@ -602,6 +602,10 @@ void Simulation::coupledStep() {
   const bool constrained = !constraints_.empty();
   const bool supportChanged = constrained && constraints_.revision() != constraintRevision_;
   if (supportChanged) {
+    // The old support's forces go now, with the revision that records the change: the
+    // clearing below skips them once the revision is current.
+    constraintForce_.setZero();
+    constraintForceZero_ = true;
     solver_.setUp(model_.mesh, constraints_);
     constraintRevision_ = constraints_.revision();
     responseValid_ = false;
@@ -634,8 +638,8 @@ void Simulation::coupledStep() {
                       startElasticTorque_);
   }
   // The constraint forces are zero outside the support, whose rows every trial writes (below):
-  // they need clearing only when the support changed, or without constraints.
-  if (!constraintForceZero_ && (!constrained || supportChanged)) {
+  // they need clearing only when the support changed (above), or without constraints.
+  if (!constraintForceZero_ && !constrained) {
     constraintForce_.setZero();
     constraintForceZero_ = true;
   }

@@ -139,7 +139,9 @@ class Stepper {
   [[nodiscard]] const TransformationMatrices* transformation() const {
     return transformation_.get();
   }
-  /// Total force (internal + external + gravity) at the start of the last step.
+  /// Total force (internal + external + gravity) at the start of the last step. Made on
+  /// demand after most steps, with the masses of the time of the call: call it before the
+  /// model's masses change to have the step's.
   [[nodiscard]] const Points& lastTotalForce() const;
   /// Default scheme: whether the drift is filtered (StepperOptions::driftFilter on a model
   /// braced by angle springs at every vertex).
