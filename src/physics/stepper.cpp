@@ -621,11 +621,28 @@ Stepper::LoadCheck Stepper::markZeroExternalBlocks(const Points& external) {
     externalSame_[k] = same ? 1 : 0;
   }
   LoadCheck check;
+  bool sameBits = true;
   for (Index b = 0; b < blocks; ++b) {
     check.zero = check.zero && externalZero_[static_cast<size_t>(b)];
-    check.same = check.same && externalSame_[static_cast<size_t>(b)];
+    sameBits = sameBits && externalSame_[static_cast<size_t>(b)];
   }
+  // No loads applied then and now (zeros of either sign are not applied), or loads of the
+  // same bits. loadsZero_ is the last step's until the step ends.
+  check.same = check.zero ? loadsZero_ : !loadsZero_ && sameBits;
   return check;
+}
+
+void Stepper::endDefaultStep(bool loadsZero, bool keptKick, bool shared) {
+  // previousInternal_ now holds the forces at the new position: swap the two buffers. The
+  // total force at the start was written with loads and a fresh first kick, else it is made
+  // on demand.
+  internal_.swap(previousInternal_);
+  totalForceReady_ = !loadsZero && !keptKick;
+  keptKick_ = keptKick;
+  cacheValid_ = true;
+  rewound_ = false;
+  kickValid_ = !shared;
+  loadsZero_ = loadsZero;
 }
 
 void Stepper::stepDefault(State& s, const Points& external, std::span<const double> share) {
@@ -642,7 +659,6 @@ void Stepper::stepDefault(State& s, const Points& external, std::span<const doub
   const Index blocks = forces_.numBlocks();
   const bool startCached = cacheValid_;
   const bool reuseCandidate = cacheValid_ && kickValid_ && share.empty();
-  const bool lastLoadsZero = loadsZero_;
   const SparseRowMatrix& o2 = system_.omega2();
   const Index* outer = o2.outerIndexPtr();
   const Index* inner = o2.innerIndexPtr();
@@ -668,9 +684,8 @@ void Stepper::stepDefault(State& s, const Points& external, std::span<const doub
   {
     const LoadCheck loads = markZeroExternalBlocks(external);
     const bool zero = loads.zero;
-    // The kept kick is the last step's second one, made with its loads: valid while these are
-    // the same (no loads then and now, or the same bits).
-    const bool reuse = reuseCandidate && (zero ? lastLoadsZero : !lastLoadsZero && loads.same);
+    // The kept kick is the last step's second one, made with its loads.
+    const bool reuse = reuseCandidate && loads.same;
     // (T/2) Phi a at row i: (T/2) a_i - (T^3/24) (Omega^2 a)_i, with a_j from the internal
     // forces f (and the total force on the way).
     const AccelerationInputs inputs{e, mass, inverseMass, share, g};
@@ -757,16 +772,7 @@ void Stepper::stepDefault(State& s, const Points& external, std::span<const doub
       reused = reuse;
     }
   }
-  // previousInternal_ now holds the forces at the new position: swap the two buffers. The
-  // total force at the start was written with loads and a fresh first kick, else it is made
-  // on demand.
-  internal_.swap(previousInternal_);
-  totalForceReady_ = !externalZero && !reused;
-  keptKick_ = reused;
-  cacheValid_ = true;
-  rewound_ = false;
-  kickValid_ = share.empty();
-  loadsZero_ = externalZero;
+  endDefaultStep(externalZero, reused, !share.empty());
 }
 
 void Stepper::stepDriftFiltered(State& s, const Points& external, std::span<const double> share) {
@@ -789,7 +795,6 @@ void Stepper::stepDriftFiltered(State& s, const Points& external, std::span<cons
   const Index blocks = forces_.numBlocks();
   const bool startCached = cacheValid_;
   const bool reuseCandidate = cacheValid_ && kickValid_ && share.empty();
-  const bool lastLoadsZero = loadsZero_;
   const SparseRowMatrix& o2 = system_.omega2();
   const double* inverseMass = system_.inverseMass().data();
   const double* mass = model_.properties.mass.data();
@@ -817,9 +822,8 @@ void Stepper::stepDriftFiltered(State& s, const Points& external, std::span<cons
   {
     const LoadCheck loads = markZeroExternalBlocks(external);
     const bool zero = loads.zero;
-    // The kept kick is the last step's second one, made with its loads: valid while these are
-    // the same (no loads then and now, or the same bits).
-    const bool reuse = reuseCandidate && (zero ? lastLoadsZero : !lastLoadsZero && loads.same);
+    // The kept kick is the last step's second one, made with its loads.
+    const bool reuse = reuseCandidate && loads.same;
     const AccelerationInputs inputs{e, mass, inverseMass, share, g};
     auto withCase = [&](auto&& body) { withLoadCase(!zero, gravity, !share.empty(), body); };
     auto blockPartial = [&](Index b) { return partial + 24 * static_cast<size_t>(b); };
@@ -938,16 +942,7 @@ void Stepper::stepDriftFiltered(State& s, const Points& external, std::span<cons
       reused = reuse;
     }
   }
-  // previousInternal_ now holds the forces at the new position: swap the two buffers. The
-  // total force at the start was written with loads and a fresh first kick, else it is made
-  // on demand.
-  internal_.swap(previousInternal_);
-  totalForceReady_ = !externalZero && !reused;
-  keptKick_ = reused;
-  cacheValid_ = true;
-  rewound_ = false;
-  kickValid_ = share.empty();
-  loadsZero_ = externalZero;
+  endDefaultStep(externalZero, reused, !share.empty());
 }
 
 void Stepper::stepPaper(State& s, const Points& external, std::span<const double> share) {

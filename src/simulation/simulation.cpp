@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <array>
 #include <cmath>
+#include <cstdint>
 #include <optional>
 #include <string>
 
@@ -148,71 +149,65 @@ void checkLoad(const TimedLoad& load, Index n, const char* what) {
     throw InvalidInputError(std::string(what) + ": ends before it starts");
 }
 
-// Whether every coordinate is finite, on `threads` threads for a large model (each cycle
-// checks the whole state; serial, that was a pass the other thread waited through).
-bool allFinite(const Points& x, int threads) {
-  const Eigen::Map<const VectorX> flat(x.data(), x.size());
-  constexpr int kParts = 8;
-  bool finite = true;
+// body(part, begin, end) for each of kParts fixed contiguous parts of [0, n), on `threads`
+// threads when n is above `serialUpTo` (the cycle's passes over the whole state: serial, the
+// step's other thread waited through them).
+template <int kParts, class Body>
+void forEachPart(std::int64_t n, int threads, std::int64_t serialUpTo, Body&& body) {
   // clang-format off
-#pragma omp parallel for reduction(&& : finite) num_threads(threads) if (threads > 1 && flat.size() > 100000)
+#pragma omp parallel for num_threads(threads) if (threads > 1 && n > serialUpTo)
   // clang-format on
-  for (int part = 0; part < kParts; ++part) {
-    const Index begin = flat.size() * part / kParts, end = flat.size() * (part + 1) / kParts;
-    finite = flat.segment(begin, end - begin).allFinite() && finite;
-  }
-  return finite;
+  for (int part = 0; part < kParts; ++part)
+    body(part, static_cast<Index>(n * part / kParts), static_cast<Index>(n * (part + 1) / kParts));
 }
 
-// to = from, on `threads` threads for a large model (each cycle keeps the last good state).
+// Whether every coordinate is finite.
+bool allFinite(const Points& x, int threads) {
+  const Eigen::Map<const VectorX> flat(x.data(), x.size());
+  std::array<std::uint8_t, 8> finite{};
+  forEachPart<8>(flat.size(), threads, 100000, [&](int part, Index begin, Index end) {
+    finite[static_cast<size_t>(part)] = flat.segment(begin, end - begin).allFinite() ? 1 : 0;
+  });
+  return std::all_of(finite.begin(), finite.end(), [](std::uint8_t f) { return f != 0; });
+}
+
+// to = from.
 void copyPoints(const Points& from, Points& to, int threads) {
   to.resize(from.rows(), 3);
   const double* source = from.data();
   double* target = to.data();
-  const Index n = from.size();
-  constexpr int kParts = 8;
-  // clang-format off
-#pragma omp parallel for num_threads(threads) if (threads > 1 && n > 100000)
-  // clang-format on
-  for (int part = 0; part < kParts; ++part)
-    std::copy(source + n * part / kParts, source + n * (part + 1) / kParts,
-              target + n * part / kParts);
+  forEachPart<8>(from.size(), threads, 100000, [&](int, Index begin, Index end) {
+    std::copy(source + begin, source + end, target + begin);
+  });
 }
 
-// out = a + b, element by element, on `threads` threads for a large model.
+// out = a + b, element by element.
 void addPoints(const Points& a, const Points& b, Points& out, int threads) {
   out.resize(a.rows(), 3);
   const double* x = a.data();
   const double* y = b.data();
   double* z = out.data();
-  const Index n = a.size();
-  // clang-format off
-#pragma omp parallel for num_threads(threads) if (threads > 1 && n > 100000)
-  // clang-format on
-  for (Index k = 0; k < n; ++k) z[k] = x[k] + y[k];
+  forEachPart<8>(a.size(), threads, 100000, [&](int, Index begin, Index end) {
+    for (Index k = begin; k < end; ++k) z[k] = x[k] + y[k];
+  });
 }
 
-// The centre of mass sum_i m_i x_i / sum_i m_i, summed in 64 fixed parts (on `threads`
-// threads for a large model) and the parts added in order: the same bits on any thread count.
+// The centre of mass sum_i m_i x_i / sum_i m_i, summed in 64 fixed parts added in order: the
+// same bits on any thread count.
 Vec3 weightedCentre(const VectorX& mass, const Points& x, int threads) {
   constexpr int kParts = 64;
   std::array<Vec3, kParts> weighted;
   std::array<double, kParts> total{};
-  const std::int64_t n = x.rows();
-  // clang-format off
-#pragma omp parallel for num_threads(threads) if (threads > 1 && n > 50000)
-  // clang-format on
-  for (int part = 0; part < kParts; ++part) {
+  forEachPart<kParts>(x.rows(), threads, 50000, [&](int part, Index begin, Index end) {
     Vec3 sum = Vec3::Zero();
     double m = 0.0;
-    for (Index i = static_cast<Index>(n * part / kParts);
-         i < static_cast<Index>(n * (part + 1) / kParts); ++i) {
+    for (Index i = begin; i < end; ++i) {
       sum += mass[i] * x.row(i).transpose();
       m += mass[i];
     }
     weighted[static_cast<size_t>(part)] = sum;
     total[static_cast<size_t>(part)] = m;
-  }
+  });
   Vec3 sum = Vec3::Zero();
   double m = 0.0;
   for (int part = 0; part < kParts; ++part) {

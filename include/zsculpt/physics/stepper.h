@@ -175,12 +175,16 @@ class Stepper {
                            std::span<const double> elasticShare);
   void refreshDamping(std::span<const Index> vertices);
   // Inside the step's parallel region: marks externalZero_ per block and returns whether all
-  // of the external forces are zero, and whether they are the last call's, bit for bit.
+  // of the external forces are zero, and whether they are the last step's (both steps apply
+  // none, or loads of the same bits).
   struct LoadCheck {
     bool zero = true;
     bool same = true;
   };
   LoadCheck markZeroExternalBlocks(const Points& external);
+  // The default scheme's bookkeeping after a step: the swap of its force buffers and what
+  // the next step may keep.
+  void endDefaultStep(bool loadsZero, bool keptKick, bool shared);
   // Forgets the last step's loads (a new block layout).
   void resetLoadRecord();
   void stepDefault(State& s, const Points& external, std::span<const double> share);
