@@ -1401,6 +1401,85 @@ TEST(Stepper, ARewoundStepRetakenFromItsStartIsAFreshStepBitForBit) {
   }
 }
 
+TEST(Stepper, ABegunStepIsTheWholeStepAndADroppedOneLeavesNoTrace) {
+  // A constrained cycle begins a trial, and drops it when its end positions miss the
+  // constraints (beginStep, rewind). Begun and finished, a step is step() bit for bit, in
+  // steps that keep their first kick and steps that make it; a step retaken after one or two
+  // dropped trials under other loads is the step taken without them, and so is the step
+  // after it (which keeps its kick again). Between the parts the stepper has no energy to
+  // offer and the time has not moved.
+  UniformProperties u;
+  u.angularStiffness = 0.2;
+  u.damping = 0.01;
+  u.gravity = Vec3(0.0, 0.0, -9.81);
+  const Model model = Model::fromMesh(makeTorus(40, 30), u);  // two blocks
+  const double dt = 0.8 * criticalPeriod(SystemMatrices(model));
+  const Index n = model.mesh.numVertices();
+  Points first = Points::Zero(n, 3), second = Points::Zero(n, 3);
+  first.row(3) << 0.5, 0.0, -0.2;
+  second.row(3) << 0.1, 0.3, 0.0;
+  for (Scheme scheme : {Scheme::Default, Scheme::Paper, Scheme::SymplecticEuler})
+    for (bool drift : {true, false}) {
+      if (scheme != Scheme::Default && !drift) continue;
+      const std::string label = std::string(schemeName(scheme)) + (drift ? "" : " no drift filter");
+      StepperOptions options;
+      options.driftFilter = drift;
+      options.measureEnergy = true;
+      options.threads = 2;
+      Stepper split(model, scheme, dt, options), whole(model, scheme, dt, options);
+      State a = perturbed(model, 0.05, 29), b = a;
+      for (int k = 0; k < 3; ++k) {  // the second and third keep their first kick
+        split.beginStep(a, first);
+        EXPECT_TRUE(split.stepBegun()) << label;
+        EXPECT_FALSE(split.internalEnergy().has_value()) << label;
+        EXPECT_EQ(a.time, b.time) << label;
+        split.finishStep(a, first);
+        EXPECT_FALSE(split.stepBegun()) << label;
+        whole.step(b, first);
+        ASSERT_TRUE(a.position == b.position && a.velocity == b.velocity) << label << " step " << k;
+        EXPECT_EQ(a.time, b.time) << label;
+        EXPECT_EQ(split.keptKick(), whole.keptKick()) << label << " step " << k;
+        if (scheme == Scheme::Default) {
+          EXPECT_EQ(split.keptKick(), k > 0) << label << " step " << k;
+          EXPECT_EQ(split.internalEnergy()->angular, whole.internalEnergy()->angular) << label;
+        }
+      }
+      // Two trials dropped (the first keeps its kick, the second makes one for other loads),
+      // then the kept one.
+      const State start = a;
+      split.beginStep(a, first);
+      EXPECT_FALSE(a.position == start.position) << label;
+      a = start;
+      split.rewind();
+      EXPECT_FALSE(split.stepBegun()) << label;
+      split.beginStep(a, second);
+      a = start;
+      split.rewind();
+      split.beginStep(a, first);
+      split.finishStep(a, first);
+      whole.step(b, first);
+      EXPECT_TRUE(a.position == b.position && a.velocity == b.velocity) << label;
+      // One dropped trial, then another load: a fresh first kick on both.
+      const State next = a;
+      split.beginStep(a, first);
+      a = next;
+      split.rewind();
+      split.beginStep(a, second);
+      split.finishStep(a, second);
+      whole.step(b, second);
+      EXPECT_TRUE(a.position == b.position && a.velocity == b.velocity) << label;
+      EXPECT_EQ(split.keptKick(), whole.keptKick()) << label;
+      split.step(a, second);
+      whole.step(b, second);
+      EXPECT_TRUE(a.position == b.position && a.velocity == b.velocity) << label;
+      EXPECT_EQ(split.keptKick(), whole.keptKick()) << label;
+      EXPECT_TRUE(split.lastTotalForce() == whole.lastTotalForce()) << label;
+      EXPECT_THROW(split.finishStep(a, second), InvalidInputError) << label;
+      split.beginStep(a, second);
+      EXPECT_THROW(split.beginStep(a, second), InvalidInputError) << label;
+    }
+}
+
 TEST(Stepper, LastTotalForceIsTheTotalForceAtTheStartOfTheStep) {
   UniformProperties u;
   u.angularStiffness = 0.2;

@@ -243,6 +243,7 @@ void Stepper::propertiesChanged(std::span<const Index> vertices) {
   if (!vertices.empty()) refreshDamping(vertices);
   cacheValid_ = false;
   kickValid_ = false;
+  begun_ = false;
 }
 
 void Stepper::setPeriod(double period) {
@@ -256,6 +257,7 @@ void Stepper::setPeriod(double period) {
   refreshDamping({});
   if (options_.driftFilter) chooseDriftFit();
   kickValid_ = false;  // the cached kick is (T/2) Phi a for the old period
+  begun_ = false;
 }
 
 void Stepper::rebuild() {
@@ -275,17 +277,26 @@ void Stepper::rebuild() {
   refreshDamping({});
   cacheValid_ = false;
   kickValid_ = false;
+  begun_ = false;
 }
 
 std::optional<PotentialEnergy> Stepper::internalEnergy() const {
   // Only the default scheme ends a step with the forces at its end position (cacheValid_);
   // the kernel's last pass is that one.
-  if (scheme_ != Scheme::Default || !cacheValid_ || rewound_ || !options_.measureEnergy)
+  if (scheme_ != Scheme::Default || !cacheValid_ || rewound_ || begun_ || !options_.measureEnergy)
     return std::nullopt;
   return forces_.energy();
 }
 
 void Stepper::rewind() {
+  // A begun default step left its start forces in internal_ (made, or kept from the step
+  // before) and a first kick for its own loads in kick_.
+  const bool begun = begun_;
+  begun_ = false;
+  if (begun && scheme_ == Scheme::Default) {
+    kickValid_ = false;
+    return;
+  }
   // A default step leaves its end forces in internal_ and its start forces in
   // previousInternal_ (the swap at its end).
   if (scheme_ != Scheme::Default || !cacheValid_ || rewound_) {
@@ -349,18 +360,24 @@ const Points& Stepper::lastTotalForce() const {
 }
 
 void Stepper::step(State& state, const Points& external, std::span<const double> share) {
+  beginStep(state, external, share);
+  finishStep(state, external, share);
+}
+
+void Stepper::beginStep(State& state, const Points& external, std::span<const double> share) {
   ZSCULPT_ASSERT(state.position.rows() == model_.mesh.numVertices() &&
                      state.velocity.rows() == model_.mesh.numVertices() &&
                      external.rows() == model_.mesh.numVertices(),
                  "state or external forces do not match the model");
-  const auto start = std::chrono::steady_clock::now();
+  ZSCULPT_ASSERT(!begun_, "a begun step must be finished or dropped before the next");
+  begunAt_ = std::chrono::steady_clock::now();
   if (tuning_) threads_ = tuner_.next();
   switch (scheme_) {
     case Scheme::Default:
       if (filtersDrift())
-        stepDriftFiltered(state, external, share);
+        stepDriftFiltered(state, external, share, Part::Begin);
       else
-        stepDefault(state, external, share);
+        stepDefault(state, external, share, Part::Begin);
       break;
     case Scheme::Paper:
       stepPaper(state, external, share);
@@ -375,9 +392,22 @@ void Stepper::step(State& state, const Points& external, std::span<const double>
       stepImplicitEuler(state, external, share);
       break;
   }
+  begun_ = true;
+}
+
+void Stepper::finishStep(State& state, const Points& external, std::span<const double> share) {
+  ZSCULPT_ASSERT(begun_, "finishStep without a begun step");
+  if (scheme_ == Scheme::Default) {
+    if (filtersDrift())
+      stepDriftFiltered(state, external, share, Part::Finish);
+    else
+      stepDefault(state, external, share, Part::Finish);
+  }
+  begun_ = false;
   state.time += period_;
   if (tuning_)
-    tuner_.record(std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count());
+    tuner_.record(
+        std::chrono::duration<double>(std::chrono::steady_clock::now() - begunAt_).count());
 }
 
 bool Stepper::accelerationRows(Index block, const Points& internal, const Points& external,
@@ -632,7 +662,15 @@ Stepper::LoadCheck Stepper::markZeroExternalBlocks(const Points& external) {
   return check;
 }
 
-void Stepper::endDefaultStep(bool loadsZero, bool keptKick, bool shared) {
+void Stepper::endDefaultPart(Part part, bool loadsZero, bool keptKick, bool shared) {
+  if (part == Part::Begin) {
+    // internal_ holds the start forces (made or kept): a dropped step's next trial takes
+    // them (rewind). The finish takes the loads as this part found them.
+    begunZero_ = loadsZero;
+    begunKeptKick_ = keptKick;
+    cacheValid_ = true;
+    return;
+  }
   // previousInternal_ now holds the forces at the new position: swap the two buffers. The
   // total force at the start was written with loads and a fresh first kick, else it is made
   // on demand.
@@ -645,7 +683,8 @@ void Stepper::endDefaultStep(bool loadsZero, bool keptKick, bool shared) {
   loadsZero_ = loadsZero;
 }
 
-void Stepper::stepDefault(State& s, const Points& external, std::span<const double> share) {
+void Stepper::stepDefault(State& s, const Points& external, std::span<const double> share,
+                          Part part) {
   // Velocity Verlet with the filtered acceleration Phi a, Phi = I - T^2 Omega^2 / 12, and
   // the damping of G exactly over two half steps (stepper.h):
   //   v <- e^{-GT} v + (T/2) Phi a(r);  r <- r + T v;  v <- e^{-GT} (v + (T/2) Phi a(r)).
@@ -654,7 +693,8 @@ void Stepper::stepDefault(State& s, const Points& external, std::span<const doub
   // fly inside the filter's product (a_j = sigma_j M_j^-1 ((F_j + F_ext,j) + mu_j g), the
   // same expression as accelerationRows) instead of being stored and read back. The first
   // kick equals the last step's second one while nothing but the position changed (same
-  // internal forces, the same external forces, no share): it is kept in kick_.
+  // internal forces, the same external forces, no share): it is kept in kick_. Part::Begin
+  // takes the first kick and the drift, Part::Finish the rest (beginStep, finishStep).
   const double t = period_, half = 0.5 * t, filter = t * t * t / 24.0;
   const Index blocks = forces_.numBlocks();
   const bool startCached = cacheValid_;
@@ -679,13 +719,16 @@ void Stepper::stepDefault(State& s, const Points& external, std::span<const doub
   in.inner = inner;
   in.value = value;
   in.dampHalf = dampHalf_.data();
-  bool externalZero = true, reused = false;
+  const bool begin = part == Part::Begin;
+  bool externalZero = begunZero_, reused = begunKeptKick_;
 #pragma omp parallel num_threads(threads_) if (threads_ > 1)
   {
-    const LoadCheck loads = markZeroExternalBlocks(external);
+    // The finish takes the loads as the begin found them.
+    const LoadCheck loads =
+        begin ? markZeroExternalBlocks(external) : LoadCheck{begunZero_, begunKeptKick_};
     const bool zero = loads.zero;
     // The kept kick is the last step's second one, made with its loads.
-    const bool reuse = reuseCandidate && loads.same;
+    const bool reuse = begin ? reuseCandidate && loads.same : begunKeptKick_;
     // (T/2) Phi a at row i: (T/2) a_i - (T^3/24) (Omega^2 a)_i, with a_j from the internal
     // forces f (and the total force on the way).
     const AccelerationInputs inputs{e, mass, inverseMass, share, g};
@@ -706,65 +749,68 @@ void Stepper::stepDefault(State& s, const Points& external, std::span<const doub
       acceleration(loads, withGravity, withShare, f, i, a, total);
       storePoint(out, half * loadPoint(a) - filter * w);
     };
-    if (!reuse && !startCached) {
-      forces_.scatter(model_, s.position, internal_);
+    if (begin) {
+      if (!reuse && !startCached) {
+        forces_.scatter(model_, s.position, internal_);
 #pragma omp for schedule(static)
-      for (Index b = 0; b < blocks; ++b) forces_.gatherBlock(b, internal_);
-    }
-    // Kick and drift; with loads, the total force at the start on the way (lastTotalForce).
-    const double* f0 = internal_.data();
-    double* total = zero ? nullptr : totalForce_.data();
-    if (reuse) {
-#pragma omp for schedule(static)
-      for (Index b = 0; b < blocks; ++b)
-        rows.plainDrift(in, forces_.blockBegin(b), forces_.blockEnd(b), v, kick, r, t);
-    } else {
-      withCase([&](auto loads, auto withGravity, auto withShare) {
+        for (Index b = 0; b < blocks; ++b) forces_.gatherBlock(b, internal_);
+      }
+      // Kick and drift; with loads, the total force at the start on the way (lastTotalForce).
+      const double* f0 = internal_.data();
+      double* total = zero ? nullptr : totalForce_.data();
+      if (reuse) {
 #pragma omp for schedule(static)
         for (Index b = 0; b < blocks; ++b)
-          for (Index i = forces_.blockBegin(b); i < forces_.blockEnd(b); ++i) {
-            const size_t k = 3 * static_cast<size_t>(i);
-            filteredKick(loads, withGravity, withShare, f0, i, kick + k,
-                         total ? total + k : nullptr);
-            const PackedPoint vi = loadPoint(v + k) * dampHalf_[i] + loadPoint(kick + k);
-            storePoint(v + k, vi);
-            storePoint(r + k, loadPoint(r + k) + t * vi);
+          rows.plainDrift(in, forces_.blockBegin(b), forces_.blockEnd(b), v, kick, r, t);
+      } else {
+        withCase([&](auto loads, auto withGravity, auto withShare) {
+#pragma omp for schedule(static)
+          for (Index b = 0; b < blocks; ++b)
+            for (Index i = forces_.blockBegin(b); i < forces_.blockEnd(b); ++i) {
+              const size_t k = 3 * static_cast<size_t>(i);
+              filteredKick(loads, withGravity, withShare, f0, i, kick + k,
+                           total ? total + k : nullptr);
+              const PackedPoint vi = loadPoint(v + k) * dampHalf_[i] + loadPoint(kick + k);
+              storePoint(v + k, vi);
+              storePoint(r + k, loadPoint(r + k) + t * vi);
+            }
+        });
+      }
+    } else {
+      // Internal forces at the new position.
+      forces_.scatter(model_, s.position, previousInternal_, options_.measureEnergy);
+      const double* f1 = previousInternal_.data();
+      if (stored) {
+        withCase([&](auto loads, auto withGravity, auto withShare) {
+#pragma omp for schedule(static)
+          for (Index b = 0; b < blocks; ++b) {
+            forces_.gatherBlock(b, previousInternal_);
+            for (Index i = forces_.blockBegin(b); i < forces_.blockEnd(b); ++i)
+              acceleration(loads, withGravity, withShare, f1, i,
+                           acceleration_.data() + 3 * static_cast<size_t>(i), nullptr);
           }
-      });
-    }
-    // Internal forces at the new position.
-    forces_.scatter(model_, s.position, previousInternal_, options_.measureEnergy);
-    const double* f1 = previousInternal_.data();
-    if (stored) {
-      withCase([&](auto loads, auto withGravity, auto withShare) {
+        });
+      } else {
 #pragma omp for schedule(static)
-        for (Index b = 0; b < blocks; ++b) {
-          forces_.gatherBlock(b, previousInternal_);
-          for (Index i = forces_.blockBegin(b); i < forces_.blockEnd(b); ++i)
-            acceleration(loads, withGravity, withShare, f1, i,
-                         acceleration_.data() + 3 * static_cast<size_t>(i), nullptr);
-        }
-      });
-    } else {
-#pragma omp for schedule(static)
-      for (Index b = 0; b < blocks; ++b) forces_.gatherBlock(b, previousInternal_);
-    }
-    // Second kick and damping.
-    if (stored) {
-#pragma omp for schedule(static)
-      for (Index b = 0; b < blocks; ++b)
-        rows.plainKick(in, forces_.blockBegin(b), forces_.blockEnd(b), acceleration_.data(), kick,
-                       v, half, filter);
-    } else {
-      withCase([&](auto loads, auto withGravity, auto withShare) {
+        for (Index b = 0; b < blocks; ++b) forces_.gatherBlock(b, previousInternal_);
+      }
+      // Second kick and damping.
+      if (stored) {
 #pragma omp for schedule(static)
         for (Index b = 0; b < blocks; ++b)
-          for (Index i = forces_.blockBegin(b); i < forces_.blockEnd(b); ++i) {
-            const size_t k = 3 * static_cast<size_t>(i);
-            filteredKick(loads, withGravity, withShare, f1, i, kick + k, nullptr);
-            storePoint(v + k, (loadPoint(v + k) + loadPoint(kick + k)) * dampHalf_[i]);
-          }
-      });
+          rows.plainKick(in, forces_.blockBegin(b), forces_.blockEnd(b), acceleration_.data(), kick,
+                         v, half, filter);
+      } else {
+        withCase([&](auto loads, auto withGravity, auto withShare) {
+#pragma omp for schedule(static)
+          for (Index b = 0; b < blocks; ++b)
+            for (Index i = forces_.blockBegin(b); i < forces_.blockEnd(b); ++i) {
+              const size_t k = 3 * static_cast<size_t>(i);
+              filteredKick(loads, withGravity, withShare, f1, i, kick + k, nullptr);
+              storePoint(v + k, (loadPoint(v + k) + loadPoint(kick + k)) * dampHalf_[i]);
+            }
+        });
+      }
     }
 #pragma omp single
     {
@@ -772,10 +818,11 @@ void Stepper::stepDefault(State& s, const Points& external, std::span<const doub
       reused = reuse;
     }
   }
-  endDefaultStep(externalZero, reused, !share.empty());
+  endDefaultPart(part, externalZero, reused, !share.empty());
 }
 
-void Stepper::stepDriftFiltered(State& s, const Points& external, std::span<const double> share) {
+void Stepper::stepDriftFiltered(State& s, const Points& external, std::span<const double> share,
+                                Part part) {
   // Velocity Verlet with both half kicks and the drift filtered (stepper.h, docs/solver.md
   // section 6), the damping of G exact over two half steps:
   //   v <- e^{-GT} v + (T/2) Phi a(r);  r <- r + T Psi v;  v <- e^{-GT} (v + (T/2) Phi a(r)),
@@ -788,7 +835,8 @@ void Stepper::stepDriftFiltered(State& s, const Points& external, std::span<cons
   // c = G^-1 B^T M u, d = G^-1 (B^T K u - C c). The partial sums are added in block order
   // by one thread, so the result does not depend on the thread count. The first kick
   // equals the last step's second one while nothing but the position changed (same
-  // internal forces, the same external forces, no share): it is kept in kick_.
+  // internal forces, the same external forces, no share): it is kept in kick_. Part::Begin
+  // takes the first kick and the drift, Part::Finish the rest (beginStep, finishStep).
   const int degree = driftDegree_;
   const double* psi = driftA_.data();  // Psi's coefficients a_k at psi[k]
   const double t = period_, half = 0.5 * t, t2 = t * t, filter = t * t * t / 24.0;
@@ -817,13 +865,16 @@ void Stepper::stepDriftFiltered(State& s, const Points& external, std::span<cons
       o2.outerIndexPtr(), o2.innerIndexPtr(), o2.valuePtr(), affineBasis_.data(),
       omegaBasis_.data(), massBases,          mass,          coefficient,
       dampHalf_.data()};
-  bool externalZero = true, reused = false;
+  const bool begin = part == Part::Begin;
+  bool externalZero = begunZero_, reused = begunKeptKick_;
 #pragma omp parallel num_threads(threads_) if (threads_ > 1)
   {
-    const LoadCheck loads = markZeroExternalBlocks(external);
+    // The finish takes the loads as the begin found them.
+    const LoadCheck loads =
+        begin ? markZeroExternalBlocks(external) : LoadCheck{begunZero_, begunKeptKick_};
     const bool zero = loads.zero;
     // The kept kick is the last step's second one, made with its loads.
-    const bool reuse = reuseCandidate && loads.same;
+    const bool reuse = begin ? reuseCandidate && loads.same : begunKeptKick_;
     const AccelerationInputs inputs{e, mass, inverseMass, share, g};
     auto withCase = [&](auto&& body) { withLoadCase(!zero, gravity, !share.empty(), body); };
     auto blockPartial = [&](Index b) { return partial + 24 * static_cast<size_t>(b); };
@@ -897,52 +948,55 @@ void Stepper::stepDriftFiltered(State& s, const Points& external, std::span<cons
                          blockPartial(b));
       }
     };
-    if (!reuse) {
-      if (!startCached) {
-        forces_.scatter(model_, s.position, internal_);
+    if (begin) {
+      if (!reuse) {
+        if (!startCached) {
+          forces_.scatter(model_, s.position, internal_);
 #pragma omp for schedule(static)
-        for (Index b = 0; b < blocks; ++b) forces_.gatherBlock(b, internal_);
+          for (Index b = 0; b < blocks; ++b) forces_.gatherBlock(b, internal_);
+        }
+        // First kick and damping.
+        filteredKick(internal_.data(), zero ? nullptr : totalForce_.data(), false);
+      } else {
+        // Damping and the first kick, kept from the last step.
+#pragma omp for schedule(static)
+        for (Index b = 0; b < blocks; ++b)
+          rows.velocity(in, forces_.blockBegin(b), forces_.blockEnd(b), v, kick, blockPartial(b));
       }
-      // First kick and damping.
-      filteredKick(internal_.data(), zero ? nullptr : totalForce_.data(), false);
+      combine(true, nullptr);
+      // The drift, Psi v by Horner (D = degree): w = a_{D-1} v + a_D T^2 W v, then
+      // w = a_k v + T^2 W w for k = D-2 .. 1, and r += T (v + T^2 W w). B^T M W = 0 (W = (I - P)
+      // Omega^2 (I - P), P M-orthogonal), so B^T M (a v + T^2 W u) = a B^T M v: each term's c is a
+      // times the velocity's, and only (Omega^2 B)^T M of it is summed.
+      auto hornerPass = [&](const double* u, double* out, double a, double scale) {
+#pragma omp for schedule(static)
+        for (Index b = 0; b < blocks; ++b)
+          rows.horner(in, forces_.blockBegin(b), forces_.blockEnd(b), u, v, out, a, scale,
+                      blockPartial(b));
+        combine(false, &a);
+      };
+      double* term = w1;
+      double* next = w2;
+      hornerPass(v, term, psi[degree - 1], psi[degree] * t2);
+      for (int k = degree - 2; k >= 1; --k) {
+        hornerPass(term, next, psi[k], t2);
+        std::swap(term, next);
+      }
+#pragma omp for schedule(static)
+      for (Index b = 0; b < blocks; ++b)
+        rows.drift(in, forces_.blockBegin(b), forces_.blockEnd(b), term, v, r, t, t2);
     } else {
-      // Damping and the first kick, kept from the last step.
-#pragma omp for schedule(static)
-      for (Index b = 0; b < blocks; ++b)
-        rows.velocity(in, forces_.blockBegin(b), forces_.blockEnd(b), v, kick, blockPartial(b));
+      // Internal forces at the new position, the second kick and damping.
+      forces_.scatter(model_, s.position, previousInternal_, options_.measureEnergy);
+      filteredKick(previousInternal_.data(), nullptr, true);
     }
-    combine(true, nullptr);
-    // The drift, Psi v by Horner (D = degree): w = a_{D-1} v + a_D T^2 W v, then
-    // w = a_k v + T^2 W w for k = D-2 .. 1, and r += T (v + T^2 W w). B^T M W = 0 (W = (I - P)
-    // Omega^2 (I - P), P M-orthogonal), so B^T M (a v + T^2 W u) = a B^T M v: each term's c is a
-    // times the velocity's, and only (Omega^2 B)^T M of it is summed.
-    auto hornerPass = [&](const double* u, double* out, double a, double scale) {
-#pragma omp for schedule(static)
-      for (Index b = 0; b < blocks; ++b)
-        rows.horner(in, forces_.blockBegin(b), forces_.blockEnd(b), u, v, out, a, scale,
-                    blockPartial(b));
-      combine(false, &a);
-    };
-    double* term = w1;
-    double* next = w2;
-    hornerPass(v, term, psi[degree - 1], psi[degree] * t2);
-    for (int k = degree - 2; k >= 1; --k) {
-      hornerPass(term, next, psi[k], t2);
-      std::swap(term, next);
-    }
-#pragma omp for schedule(static)
-    for (Index b = 0; b < blocks; ++b)
-      rows.drift(in, forces_.blockBegin(b), forces_.blockEnd(b), term, v, r, t, t2);
-    // Internal forces at the new position, the second kick and damping.
-    forces_.scatter(model_, s.position, previousInternal_, options_.measureEnergy);
-    filteredKick(previousInternal_.data(), nullptr, true);
 #pragma omp single
     {
       externalZero = zero;
       reused = reuse;
     }
   }
-  endDefaultStep(externalZero, reused, !share.empty());
+  endDefaultPart(part, externalZero, reused, !share.empty());
 }
 
 void Stepper::stepPaper(State& s, const Points& external, std::span<const double> share) {

@@ -490,8 +490,14 @@ void Simulation::runTrial(bool constrained, bool first) {
       stepper_->rewind();
     else if (rigidActive_)
       stepper_->invalidate();
+    // A constrained trial is kept only if it meets the constraints, which its end positions
+    // tell: the step is finished once one does (coupledStep), and a dropped trial costs the
+    // kick and the drift, not the forces at its end and the second kick. With the rigid
+    // body each trial is whole: the rigid motion moves the vertices after the elastic step.
     if (rigidActive_)
       stepper_->step(trial_, *load, sigma_);
+    else if (constrained)
+      stepper_->beginStep(trial_, *load);
     else
       stepper_->step(trial_, *load);
   }
@@ -673,6 +679,7 @@ void Simulation::coupledStep() {
       response_.anchor(supportElastic_, elasticCentre_, solver_.forces());
       solver_.solve(constraints_, response_, positionTolerance, settings_.normalTolerance);
     }
+    if (stepper_->stepBegun()) stepper_->finishStep(trial_, loadForce_);
     if (!report_.converged && !warnedUnmet_) {
       warnings_.push_back("constraints not met at t = " + std::to_string(state_.time) +
                           " s (position error " + std::to_string(report_.positionError) +

@@ -33,6 +33,7 @@
 #include <Eigen/Dense>
 #include <Eigen/SparseCore>
 #include <array>
+#include <chrono>
 #include <cstdint>
 #include <memory>
 #include <optional>
@@ -111,6 +112,19 @@ class Stepper {
   /// reaches the elastic stepper (section 4.3, sigma_i); empty means 1.
   void step(State& state, const Points& external, std::span<const double> elasticShare = {});
 
+  /// step() in two parts, for a caller that may drop a step once its end positions are known
+  /// (a constrained cycle's trials: Simulation). beginStep() moves the positions to the
+  /// step's end (the velocity up to the second kick); finishStep() takes the rest: the
+  /// default scheme's forces at the end and its second kick, and the time. Together they are
+  /// step(), bit for bit, and a dropped step costs only its first part (about two fifths of
+  /// a step). To drop a begun step, set the state back to its start and call rewind(): the
+  /// next beginStep() starts from the start forces the dropped one made. Both parts take the
+  /// same loads and share. Schemes other than default take the whole step in beginStep().
+  void beginStep(State& state, const Points& external, std::span<const double> elasticShare = {});
+  void finishStep(State& state, const Points& external, std::span<const double> elasticShare = {});
+  /// A step was begun and neither finished nor dropped (rewind(), invalidate()).
+  [[nodiscard]] bool stepBegun() const { return begun_; }
+
   /// Default scheme: step with period `period` from now on (Simulation splits a cycle into
   /// steps of T / n when the motion is fast: SimulationSettings::substepStrain). O(N) (the
   /// damping factors), no allocation. Throws InvalidInputError for other schemes (the paper
@@ -124,12 +138,16 @@ class Stepper {
   /// Rebuild everything (a global edit).
   void rebuild();
   /// Cached internal forces are stale (the state was changed from outside).
-  void invalidate() { cacheValid_ = false; }
-  /// The state was set back to where the last step started (a constrained cycle's next trial
-  /// from the same start): the internal forces there, which that step kept, serve again
-  /// instead of being evaluated anew (about a fifth of a drag's cycle); the same bits either
-  /// way. Otherwise like invalidate() (a scheme other than default, no step since the last
-  /// invalidation, or a second rewind).
+  /// Drops a begun step too.
+  void invalidate() {
+    cacheValid_ = false;
+    begun_ = false;
+  }
+  /// The state was set back to where the last step started, or the begun one (a constrained
+  /// cycle's next trial from the same start): the internal forces there, which that step
+  /// kept, serve again instead of being evaluated anew (about a fifth of a drag's cycle); the
+  /// same bits either way. Otherwise like invalidate() (a scheme other than default, no step
+  /// since the last invalidation, or a second rewind).
   void rewind();
 
   [[nodiscard]] Scheme scheme() const { return scheme_; }
@@ -182,14 +200,17 @@ class Stepper {
     bool same = true;
   };
   LoadCheck markZeroExternalBlocks(const Points& external);
-  // The default scheme's bookkeeping after a step: the swap of its force buffers and what
-  // the next step may keep.
-  void endDefaultStep(bool loadsZero, bool keptKick, bool shared);
+  // The default scheme's two parts (beginStep, finishStep).
+  enum class Part { Begin, Finish };
+  // Its bookkeeping after each: after the begin, what the finish needs of its loads; after
+  // the finish, the swap of its force buffers and what the next step may keep.
+  void endDefaultPart(Part part, bool loadsZero, bool keptKick, bool shared);
   // Forgets the last step's loads (a new block layout).
   void resetLoadRecord();
-  void stepDefault(State& s, const Points& external, std::span<const double> share);
+  void stepDefault(State& s, const Points& external, std::span<const double> share, Part part);
   // The default scheme with StepperOptions::driftFilter on a braced model.
-  void stepDriftFiltered(State& s, const Points& external, std::span<const double> share);
+  void stepDriftFiltered(State& s, const Points& external, std::span<const double> share,
+                         Part part);
   void stepPaper(State& s, const Points& external, std::span<const double> share);
   void stepExact(State& s, const Points& external, std::span<const double> share);
   void stepSymplecticEuler(State& s, const Points& external, std::span<const double> share);
@@ -229,6 +250,12 @@ class Stepper {
   // elastic share is given.
   bool kickValid_ = false;
   bool keptKick_ = false;
+  // beginStep() ran and finishStep() has not: what the begun step found of its loads, and
+  // when it began (the thread tuner times begin and finish together).
+  bool begun_ = false;
+  bool begunZero_ = true;
+  bool begunKeptKick_ = false;
+  std::chrono::steady_clock::time_point begunAt_;
   // Per vertex: exp(-g T) (half a step of damping, default scheme) and exp(-2 g T).
   VectorX dampHalf_, dampFull_;
   // Per block: are the external forces of its rows zero (a zero's sign aside: such loads are
