@@ -64,6 +64,7 @@ void Simulation::updateRigidity() {
   rigidDamping_ = mass > 0.0 ? 0.5 * p.damping.sum() / mass : 0.0;
   responseValid_ = false;
   baseForceValid_ = false;
+  elasticEnd_.resize(rigidActive_ && !allRigid_ ? n : 0, 3);
 }
 
 void Simulation::splitVelocity() {
@@ -491,15 +492,17 @@ void Simulation::runTrial(bool constrained, bool first) {
     else if (rigidActive_)
       stepper_->invalidate();
     // A constrained trial is kept only if it meets the constraints, which its end positions
-    // tell: the step is finished once one does (coupledStep), and a dropped trial costs the
-    // kick and the drift, not the forces at its end and the second kick. With the rigid
-    // body each trial is whole: the rigid motion moves the vertices after the elastic step.
-    if (rigidActive_)
-      stepper_->step(trial_, *load, sigma_);
-    else if (constrained)
-      stepper_->beginStep(trial_, *load);
-    else
-      stepper_->step(trial_, *load);
+    // tell: the step is finished once one does (finishTrial), and a dropped trial costs the
+    // kick and the drift, not the forces at its end and the second kick.
+    const std::span<const double> share =
+        rigidActive_ ? std::span<const double>(sigma_) : std::span<const double>();
+    if (constrained) {
+      stepper_->beginStep(trial_, *load, share);
+      // The rigid motion (below) moves the vertices; the step is finished where it ended.
+      if (rigidActive_) copyPoints(trial_.position, elasticEnd_, threads);
+    } else {
+      stepper_->step(trial_, *load, share);
+    }
   }
   const auto support = solver_.support();
   if (!rigidActive_) {
@@ -528,6 +531,17 @@ void Simulation::runTrial(bool constrained, bool first) {
   }
   drift_ = rigidDrift(start_, rigidMomentum_, force, torque, t, rigidDamping_);
   applyRigidMotion(elasticCentre_, drift_.translation, drift_.rotation, trial_.position);
+}
+
+void Simulation::finishTrial() {
+  if (!stepper_->stepBegun()) return;  // fully rigid: no elastic step
+  const std::span<const double> share =
+      rigidActive_ ? std::span<const double>(sigma_) : std::span<const double>();
+  // The second part reads the positions (the forces there) and changes only the velocity:
+  // the elastic end positions are swapped in for it and out again (two pointer swaps).
+  if (rigidActive_) trial_.position.swap(elasticEnd_);
+  stepper_->finishStep(trial_, loadForce_, share);
+  if (rigidActive_) trial_.position.swap(elasticEnd_);
 }
 
 void Simulation::finishRigid() {
@@ -679,7 +693,7 @@ void Simulation::coupledStep() {
       response_.anchor(supportElastic_, elasticCentre_, solver_.forces());
       solver_.solve(constraints_, response_, positionTolerance, settings_.normalTolerance);
     }
-    if (stepper_->stepBegun()) stepper_->finishStep(trial_, loadForce_);
+    finishTrial();
     if (!report_.converged && !warnedUnmet_) {
       warnings_.push_back("constraints not met at t = " + std::to_string(state_.time) +
                           " s (position error " + std::to_string(report_.positionError) +

@@ -187,6 +187,9 @@ class Simulation {
   void splitVelocity();
   void coupledStep();
   void runTrial(bool constrained, bool first);
+  // Finishes the constrained trial that met the constraints (or the last one allowed): the
+  // stepper's second part, where the elastic step ended.
+  void finishTrial();
   void finishRigid();
   void computeBaseForce(const Points& position);
   void addToLedger(const Vec3& centre, const Points& velocityDelta);
@@ -229,6 +232,9 @@ class Simulation {
   Vec3 elasticCentre_ = Vec3::Zero();
   State elasticStart_;  // the elastic solver's start (positions, u) for trials
   State trial_;
+  // With rigid motion, a constrained trial's elastic end positions, before the rigid motion
+  // moved them (finishTrial). Sized with the rigidity (updateRigidity).
+  Points elasticEnd_;
 
   // Constraints (section 6).
   ConstraintSet constraints_;
