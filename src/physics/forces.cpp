@@ -1071,9 +1071,11 @@ void ForceKernel::scatter(const Model& model, const Points& position, Points& fo
     {
       force.setZero();
       const PotentialEnergy e = accumulateInternalForces(model, position, force);
-      std::fill(blockEnergy_.begin(), blockEnergy_.end(), 0.0);
-      blockEnergy_[0] = e.radial;
-      blockEnergy_[1] = e.angular;
+      if (withEnergy) {
+        std::fill(blockEnergy_.begin(), blockEnergy_.end(), 0.0);
+        blockEnergy_[0] = e.radial;
+        blockEnergy_[1] = e.angular;
+      }
     }
     return;
   }

@@ -410,6 +410,17 @@ void Stepper::finishStep(State& state, const Points& external, std::span<const d
         std::chrono::duration<double>(std::chrono::steady_clock::now() - begunAt_).count());
 }
 
+void Stepper::internalForces(const Points& position, Points& force) {
+  ZSCULPT_ASSERT(!begun_, "internalForces inside a begun step");
+  const Index blocks = forces_.numBlocks();
+#pragma omp parallel num_threads(threads_) if (threads_ > 1)
+  {
+    forces_.scatter(model_, position, force);
+#pragma omp for schedule(static)
+    for (Index b = 0; b < blocks; ++b) forces_.gatherBlock(b, force);
+  }
+}
+
 bool Stepper::accelerationRows(Index block, const Points& internal, const Points& external,
                                std::span<const double> share, bool writeTotal) {
   // a = sigma M^-1 F_tot, F_tot = (internal + external) + mu g, in this order (section 4.3

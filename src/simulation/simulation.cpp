@@ -460,10 +460,13 @@ void Simulation::subCycle(const Points& start) {
 }
 
 void Simulation::computeBaseForce(const Points& position) {
-  baseForce_.setZero();
   // The internal forces of a fully rigid model add up to no force and no torque: skip them
-  // (their rounding would only stir the rigid body).
-  if (!allRigid_) accumulateInternalForces(model_, position, baseForce_);
+  // (their rounding would only stir the rigid body). The others come from the step's own
+  // force kernel (vectorised, on the step's threads; the same bits on any thread count).
+  if (allRigid_)
+    baseForce_.setZero();
+  else
+    stepper_->internalForces(position, baseForce_);
   accumulateGravity(model_.properties, position, baseForce_);
   baseForceValid_ = true;
 }

@@ -125,6 +125,12 @@ class Stepper {
   /// A step was begun and neither finished nor dropped (rewind(), invalidate()).
   [[nodiscard]] bool stepBegun() const { return begun_; }
 
+  /// The internal forces at `position` into `force` (N x 3, every row overwritten) by the
+  /// step's force kernel on the step's threads, for positions the stepper did not step to
+  /// (Simulation's rigid coupling). Not between beginStep() and finishStep(); the step's
+  /// cached forces and energy stay as they were.
+  void internalForces(const Points& position, Points& force);
+
   /// Default scheme: step with period `period` from now on (Simulation splits a cycle into
   /// steps of T / n when the motion is fast: SimulationSettings::substepStrain). O(N) (the
   /// damping factors), no allocation. Throws InvalidInputError for other schemes (the paper
