@@ -1480,6 +1480,63 @@ TEST(Stepper, ABegunStepIsTheWholeStepAndADroppedOneLeavesNoTrace) {
     }
 }
 
+TEST(Stepper, StartAtGivesTheForcesTheNextStepStartsFrom) {
+  // Simulation's rigid coupling takes the internal forces where the rigid motion ended, and
+  // the next elastic step starts there (startAt). They are the kernel's forces and energy at
+  // that position, and the step from there is the step with its start forces evaluated
+  // afresh, bit for bit, with a share (the rigid coupling's) and without. The last step's
+  // total force outlives them, a rewound step's too.
+  UniformProperties u;
+  u.angularStiffness = 0.2;
+  u.gravity = Vec3(0.0, 0.0, -9.81);
+  const Model model = Model::fromMesh(makeTorus(40, 30), u);  // two blocks
+  const double dt = 0.5 * criticalPeriod(SystemMatrices(model));
+  const Index n = model.mesh.numVertices();
+  Points load = Points::Zero(n, 3);
+  load.row(7) << 0.2, -0.1, 0.4;
+  const std::vector<double> share(static_cast<size_t>(n), 0.6);
+  for (bool shared : {false, true}) {
+    StepperOptions options;
+    options.measureEnergy = true;
+    options.threads = 2;
+    Stepper primed(model, Scheme::Default, dt, options), fresh(model, Scheme::Default, dt, options);
+    const std::span<const double> sigma =
+        shared ? std::span<const double>(share) : std::span<const double>();
+    State a = perturbed(model, 0.05, 30), b = a;
+    primed.step(a, load, sigma);
+    fresh.step(b, load, sigma);
+    // Moved elsewhere, as the rigid motion moves the vertices.
+    a.position.rowwise() += Eigen::RowVector3d(0.01, -0.02, 0.03);
+    b.position = a.position;
+    Points expected(n, 3);
+    ForceKernel kernel(model, 1);
+    kernel.compute(model, a.position, expected, 1);
+    const Points total = primed.lastTotalForce();
+    ASSERT_TRUE(primed.startAt(a.position) == expected) << "share " << shared;
+    EXPECT_TRUE(primed.lastTotalForce() == total) << "share " << shared;
+    ASSERT_TRUE(primed.internalEnergy().has_value());
+    EXPECT_EQ(primed.internalEnergy()->angular, kernel.energy().angular);
+    EXPECT_EQ(primed.internalEnergy()->radial, kernel.energy().radial);
+    fresh.invalidate();
+    primed.step(a, load, sigma);
+    fresh.step(b, load, sigma);
+    EXPECT_TRUE(a.position == b.position && a.velocity == b.velocity) << "share " << shared;
+    // After a dropped trial the start forces are the rewound step's; its total force stays
+    // (made on demand when the step kept its kick: the same loads, no share).
+    State c = a;
+    primed.step(a, load, sigma);
+    EXPECT_EQ(primed.keptKick(), !shared);
+    a = c;
+    primed.rewind();
+    Points rewoundTotal(n, 3);
+    kernel.compute(model, c.position, rewoundTotal, 1);
+    rewoundTotal += load;
+    accumulateGravity(model.properties, c.position, rewoundTotal);
+    (void)primed.startAt(a.position);
+    EXPECT_TRUE(primed.lastTotalForce() == rewoundTotal) << "share " << shared;
+  }
+}
+
 TEST(Stepper, LastTotalForceIsTheTotalForceAtTheStartOfTheStep) {
   UniformProperties u;
   u.angularStiffness = 0.2;

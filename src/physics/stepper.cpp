@@ -410,15 +410,22 @@ void Stepper::finishStep(State& state, const Points& external, std::span<const d
         std::chrono::duration<double>(std::chrono::steady_clock::now() - begunAt_).count());
 }
 
-void Stepper::internalForces(const Points& position, Points& force) {
-  ZSCULPT_ASSERT(!begun_, "internalForces inside a begun step");
+const Points& Stepper::startAt(const Points& position) {
+  ZSCULPT_ASSERT(!begun_, "startAt inside a begun step");
+  // internal_ is about to change: the last step's total force, if it is to be made on demand
+  // from a rewound internal_, is made now (as in rebuild()).
+  if (!totalForceReady_) (void)lastTotalForce();
   const Index blocks = forces_.numBlocks();
 #pragma omp parallel num_threads(threads_) if (threads_ > 1)
   {
-    forces_.scatter(model_, position, force);
+    forces_.scatter(model_, position, internal_, options_.measureEnergy);
 #pragma omp for schedule(static)
-    for (Index b = 0; b < blocks; ++b) forces_.gatherBlock(b, force);
+    for (Index b = 0; b < blocks; ++b) forces_.gatherBlock(b, internal_);
   }
+  cacheValid_ = true;
+  rewound_ = false;
+  kickValid_ = false;  // the kept kick is for the last step's end
+  return internal_;
 }
 
 bool Stepper::accelerationRows(Index block, const Points& internal, const Points& external,

@@ -455,18 +455,22 @@ void Simulation::subCycle(const Points& start) {
     loadWork_ += (external_.array() * (state_.position - start).array()).sum();
   // Without rigid motion the cycle ends where the stepper's last step ended: the plain cycle
   // steps state_ itself, a constrained one takes its last trial's positions (the velocity
-  // correction moves no vertex). The rigid motion moves them after the elastic step.
-  energyAtState_ = !rigidActive_;
+  // correction moves no vertex). With it, the stepper's last forces are those computeBaseForce
+  // took where the rigid motion ended, which is the state's positions too (a fully rigid
+  // model has none).
+  energyAtState_ = !allRigid_;
 }
 
 void Simulation::computeBaseForce(const Points& position) {
   // The internal forces of a fully rigid model add up to no force and no torque: skip them
   // (their rounding would only stir the rigid body). The others come from the step's own
-  // force kernel (vectorised, on the step's threads; the same bits on any thread count).
+  // force kernel (vectorised, on the step's threads; the same bits on any thread count),
+  // which keeps them for the next elastic step: it starts at `position` (the cycle's start,
+  // or the end of this cycle's rigid motion, where the next one starts).
   if (allRigid_)
     baseForce_.setZero();
   else
-    stepper_->internalForces(position, baseForce_);
+    copyPoints(stepper_->startAt(position), baseForce_, stepper_->threads());
   accumulateGravity(model_.properties, position, baseForce_);
   baseForceValid_ = true;
 }
@@ -487,13 +491,11 @@ void Simulation::runTrial(bool constrained, bool first) {
     trial_.position += t * trial_.velocity;
     trial_.time += t;
   } else {
-    // The stepper caches internal forces at its last end positions; they are stale after
-    // the rigid motion moved the vertices. A later trial of this cycle starts where the
-    // earlier one did, whose start forces the stepper kept (rewind).
-    if (!first)
-      stepper_->rewind();
-    else if (rigidActive_)
-      stepper_->invalidate();
+    // The stepper caches internal forces at its last end positions; with rigid motion, which
+    // moved the vertices after that, computeBaseForce has given it those at the cycle's start
+    // (Stepper::startAt). A later trial of this cycle starts where the earlier one did, whose
+    // start forces the stepper kept (rewind).
+    if (!first) stepper_->rewind();
     // A constrained trial is kept only if it meets the constraints, which its end positions
     // tell: the step is finished once one does (finishTrial), and a dropped trial costs the
     // kick and the drift, not the forces at its end and the second kick.

@@ -125,11 +125,13 @@ class Stepper {
   /// A step was begun and neither finished nor dropped (rewind(), invalidate()).
   [[nodiscard]] bool stepBegun() const { return begun_; }
 
-  /// The internal forces at `position` into `force` (N x 3, every row overwritten) by the
-  /// step's force kernel on the step's threads, for positions the stepper did not step to
-  /// (Simulation's rigid coupling). Not between beginStep() and finishStep(); the step's
-  /// cached forces and energy stay as they were.
-  void internalForces(const Points& position, Points& force);
+  /// The internal forces at `position` (N x 3), by the step's force kernel on the step's
+  /// threads, kept as the next step's start forces: for a caller that needs them itself and
+  /// steps from `position` next (Simulation's rigid coupling, whose rigid motion moves the
+  /// vertices after each elastic step), so that the step does not evaluate them again. The
+  /// caller must invalidate() if the next step starts elsewhere. internalEnergy() is then
+  /// the energy at `position`. Not between beginStep() and finishStep().
+  const Points& startAt(const Points& position);
 
   /// Default scheme: step with period `period` from now on (Simulation splits a cycle into
   /// steps of T / n when the motion is fast: SimulationSettings::substepStrain). O(N) (the
@@ -178,8 +180,9 @@ class Stepper {
   /// degree of Psi in T^2 W (2 to 4: the lowest whose fit holds at this period).
   [[nodiscard]] int driftProducts() const { return driftDegree_; }
   /// Default scheme with StepperOptions::measureEnergy, when the internal forces at the end
-  /// of the last step are still cached (nothing invalidated them since): their radial and
-  /// angular energy, from the same pass (ForceKernel::energy). Otherwise nullopt.
+  /// of the last step, or those of startAt(), are still cached (nothing invalidated them
+  /// since): their radial and angular energy, from the same pass (ForceKernel::energy).
+  /// Otherwise nullopt.
   [[nodiscard]] std::optional<PotentialEnergy> internalEnergy() const;
   /// Threads the last step used.
   [[nodiscard]] int threads() const { return threads_; }
