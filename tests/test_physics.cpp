@@ -1537,6 +1537,62 @@ TEST(Stepper, StartAtGivesTheForcesTheNextStepStartsFrom) {
   }
 }
 
+TEST(Stepper, TurnedEndForcesAreTheForcesWhereARigidMotionTookTheModel) {
+  // Simulation's rigid coupling moves the elastic step's end positions by a rigid motion;
+  // the springs' forces turn with them. turnEndForces gives the end forces turned, kept as
+  // the next step's start forces: the kernel's forces at the moved positions to rounding,
+  // and the step from there is a fresh one to rounding. With no end forces cached it gives
+  // nothing and changes nothing.
+  UniformProperties u;
+  u.angularStiffness = 0.2;
+  const Model model = Model::fromMesh(makeTorus(40, 30), u);  // two blocks
+  const double dt = 0.5 * criticalPeriod(SystemMatrices(model));
+  const Index n = model.mesh.numVertices();
+  const Points none = Points::Zero(n, 3);
+  const std::vector<double> share(static_cast<size_t>(n), 0.6);
+  StepperOptions options;
+  options.measureEnergy = true;
+  options.threads = 2;
+  Stepper turning(model, Scheme::Default, dt, options), fresh(model, Scheme::Default, dt, options);
+  State a = perturbed(model, 0.2, 32);
+  turning.step(a, none, share);
+  const Mat3 rotation =
+      Eigen::AngleAxisd(0.7, Vec3(1.0, 2.0, -0.5).normalized()).toRotationMatrix();
+  Points end(n, 3);
+  ForceKernel kernel(model, 1);
+  kernel.compute(model, a.position, end, 1);
+  const PotentialEnergy before = *turning.internalEnergy();
+  const Vec3 pivot(0.3, -0.1, 0.2), shift(0.05, 0.0, -0.02);
+  for (Index i = 0; i < n; ++i)
+    a.position.row(i) =
+        (pivot + shift + rotation * (a.position.row(i).transpose() - pivot)).transpose();
+  const Points* turned = turning.turnEndForces(rotation);
+  ASSERT_NE(turned, nullptr);
+  Points expected = end * rotation.transpose();
+  EXPECT_LT(relativeDifference(*turned, expected), 1e-15);
+  Points moved(n, 3);
+  kernel.compute(model, a.position, moved, 1);
+  EXPECT_LT(relativeDifference(*turned, moved), 1e-13);
+  EXPECT_GT(relativeDifference(moved, end), 0.1);                // the rotation matters
+  EXPECT_EQ(turning.internalEnergy()->angular, before.angular);  // the same springs' energy
+  State b = a;
+  turning.step(a, none, share);
+  fresh.step(b, none, share);  // its start forces evaluated where the model now is
+  EXPECT_LT((a.position - b.position).cwiseAbs().maxCoeff(), 1e-12);
+  EXPECT_LT((a.velocity - b.velocity).cwiseAbs().maxCoeff(), 1e-10);
+  // Nothing to turn: invalidated, begun, or another scheme.
+  turning.invalidate();
+  EXPECT_EQ(turning.turnEndForces(rotation), nullptr);
+  turning.beginStep(a, none);
+  EXPECT_EQ(turning.turnEndForces(rotation), nullptr);
+  turning.finishStep(a, none);
+  EXPECT_NE(turning.turnEndForces(rotation), nullptr);
+  Stepper paper(model, Scheme::Paper, dt);
+  State c = perturbed(model, 0.2, 32);
+  paper.step(c, none);
+  EXPECT_EQ(paper.turnEndForces(rotation), nullptr);
+}
+
 TEST(Stepper, LastTotalForceIsTheTotalForceAtTheStartOfTheStep) {
   UniformProperties u;
   u.angularStiffness = 0.2;

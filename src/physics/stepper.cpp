@@ -428,6 +428,25 @@ const Points& Stepper::startAt(const Points& position) {
   return internal_;
 }
 
+const Points* Stepper::turnEndForces(const Mat3& rotation) {
+  // After a finished default step internal_ holds the forces at its end (endDefaultPart),
+  // and the kernel their energy, which a rigid motion does not change.
+  if (scheme_ != Scheme::Default || !cacheValid_ || rewound_ || begun_) return nullptr;
+  const Index blocks = forces_.numBlocks();
+  double* f = internal_.data();
+#pragma omp parallel for num_threads(threads_) if (threads_ > 1) schedule(static)
+  for (Index b = 0; b < blocks; ++b)
+    for (Index i = forces_.blockBegin(b); i < forces_.blockEnd(b); ++i) {
+      double* row = f + 3 * static_cast<size_t>(i);
+      const Vec3 turned = rotation * Vec3(row[0], row[1], row[2]);
+      row[0] = turned.x();
+      row[1] = turned.y();
+      row[2] = turned.z();
+    }
+  kickValid_ = false;  // the kept kick is for the unmoved end
+  return &internal_;
+}
+
 bool Stepper::accelerationRows(Index block, const Points& internal, const Points& external,
                                std::span<const double> share, bool writeTotal) {
   // a = sigma M^-1 F_tot, F_tot = (internal + external) + mu g, in this order (section 4.3

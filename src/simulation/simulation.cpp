@@ -554,8 +554,17 @@ void Simulation::finishRigid() {
   const VectorX& mass = model_.properties.mass;
   end_ = massProperties(mass, trial_.position);
   // Second half kick with the forces at the end of the drift (velocity Verlet); they are
-  // also the next cycle's start forces.
-  computeBaseForce(trial_.position);
+  // also the next cycle's start forces. The rigid motion turned the elastic step's end
+  // positions, and their internal forces turn with them: the step's end forces turned by
+  // the same rotation are those forces (to rounding), without an evaluation.
+  const Points* turned = allRigid_ ? nullptr : stepper_->turnEndForces(drift_.rotation);
+  if (turned) {
+    copyPoints(*turned, baseForce_, stepper_->threads());
+    accumulateGravity(model_.properties, trial_.position, baseForce_);
+    baseForceValid_ = true;
+  } else {
+    computeBaseForce(trial_.position);
+  }
   // Point forces are held over the cycle; a torque load stays the same torque, so its
   // virtual forces are laid out again on the moved vertices.
   if (torques_.empty()) {

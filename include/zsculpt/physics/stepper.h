@@ -132,6 +132,13 @@ class Stepper {
   /// caller must invalidate() if the next step starts elsewhere. internalEnergy() is then
   /// the energy at `position`. Not between beginStep() and finishStep().
   const Points& startAt(const Points& position);
+  /// The internal forces at the end of the last step turned by `rotation`, kept as the next
+  /// step's start forces, as startAt() would evaluate them at the end positions moved by a
+  /// rigid motion with that rotation (the springs' forces turn with the body: they depend on
+  /// lengths and angles only), for a pass of 3 x 3 products instead of an evaluation. Null,
+  /// changing nothing, when the end forces are not cached (a scheme other than default,
+  /// invalidated, rewound or begun): then startAt().
+  const Points* turnEndForces(const Mat3& rotation);
 
   /// Default scheme: step with period `period` from now on (Simulation splits a cycle into
   /// steps of T / n when the motion is fast: SimulationSettings::substepStrain). O(N) (the
