@@ -1480,6 +1480,100 @@ TEST(Stepper, ABegunStepIsTheWholeStepAndADroppedOneLeavesNoTrace) {
     }
 }
 
+TEST(Stepper, WhatCannotBeRewoundIsEvaluatedAfresh) {
+  // rewind() gives back the start forces of the last step, finished or begun, once. A second
+  // rewind, a rewind after startAt() (whose forces are no step's end), or a new period
+  // while a step is begun, must act as invalidate(): the step after each is the bits of a
+  // twin stepper that was invalidated instead. And a dropped step is the last step for
+  // lastTotalForce(): its start forces, loads and gravity.
+  UniformProperties u;
+  u.angularStiffness = 0.2;
+  u.gravity = Vec3(0.0, 0.0, -9.81);
+  const Model model = Model::fromMesh(makeTorus(40, 30), u);  // two blocks
+  const double dt = 0.5 * criticalPeriod(SystemMatrices(model));
+  const Index n = model.mesh.numVertices();
+  Points first = Points::Zero(n, 3), second = Points::Zero(n, 3);
+  first.row(3) << 0.5, 0.0, -0.2;
+  second.row(3) << 0.1, 0.3, 0.0;
+  for (bool drift : {true, false}) {
+    StepperOptions options;
+    options.driftFilter = drift;
+    options.threads = 2;
+    const std::string label = drift ? "drift filter" : "kick filter";
+    auto expectSame = [&](const State& x, const State& y, const std::string& what) {
+      EXPECT_TRUE(x.position == y.position && x.velocity == y.velocity) << label << ": " << what;
+    };
+    {  // begun, rewound twice
+      Stepper a(model, Scheme::Default, dt, options), b(model, Scheme::Default, dt, options);
+      State sa = perturbed(model, 0.05, 33), sb = sa;
+      for (int k = 0; k < 2; ++k) {
+        a.step(sa, first);
+        b.step(sb, first);
+      }
+      const State start = sa;
+      a.beginStep(sa, second);
+      b.beginStep(sb, second);
+      sa = start;
+      sb = start;
+      a.rewind();
+      a.rewind();
+      b.invalidate();
+      a.step(sa, first);
+      b.step(sb, first);
+      expectSame(sa, sb, "a second rewind of a begun step");
+    }
+    {  // finished, rewound, startAt, rewound
+      Stepper a(model, Scheme::Default, dt, options), b(model, Scheme::Default, dt, options);
+      State sa = perturbed(model, 0.05, 34), sb = sa;
+      const State start = sa;
+      a.step(sa, first);
+      b.step(sb, first);
+      sa = start;
+      sb = start;
+      a.rewind();
+      (void)a.startAt(start.position);
+      a.rewind();
+      b.invalidate();
+      a.step(sa, second);
+      b.step(sb, second);
+      expectSame(sa, sb, "a rewind after startAt");
+    }
+    {  // a new period while a step is begun
+      Stepper a(model, Scheme::Default, dt, options), b(model, Scheme::Default, dt, options);
+      State sa = perturbed(model, 0.05, 35), sb = sa;
+      a.step(sa, first);
+      b.step(sb, first);
+      a.beginStep(sa, first);
+      b.beginStep(sb, first);
+      a.setPeriod(0.5 * dt);
+      b.invalidate();
+      b.setPeriod(0.5 * dt);
+      a.step(sa, first);
+      b.step(sb, first);
+      expectSame(sa, sb, "a new period while begun");
+    }
+    {  // the dropped step's total force, after a step that kept its kick
+      Stepper a(model, Scheme::Default, dt, options);
+      State sa = perturbed(model, 0.05, 36);
+      a.step(sa, first);
+      a.step(sa, first);
+      ASSERT_TRUE(a.keptKick()) << label;
+      const State start = sa;
+      for (const Points* loads : {&second, &first}) {  // a fresh kick, a kept one
+        a.beginStep(sa, *loads);
+        sa = start;
+        a.rewind();
+        Points expected(n, 3);
+        ForceKernel kernel(model, 1);
+        kernel.compute(model, start.position, expected, 1);
+        expected += *loads;
+        accumulateGravity(model.properties, start.position, expected);
+        EXPECT_TRUE(a.lastTotalForce() == expected) << label;
+      }
+    }
+  }
+}
+
 TEST(Stepper, StartAtGivesTheForcesTheNextStepStartsFrom) {
   // Simulation's rigid coupling takes the internal forces where the rigid motion ended, and
   // the next elastic step starts there (startAt). They are the kernel's forces and energy at

@@ -241,9 +241,9 @@ void Stepper::propertiesChanged(std::span<const Index> vertices) {
   }
   forces_.propertiesChanged(model_, vertices);
   if (!vertices.empty()) refreshDamping(vertices);
+  if (begun_) dropBegunStep();
   cacheValid_ = false;
   kickValid_ = false;
-  begun_ = false;
 }
 
 void Stepper::setPeriod(double period) {
@@ -257,7 +257,7 @@ void Stepper::setPeriod(double period) {
   refreshDamping({});
   if (options_.driftFilter) chooseDriftFit();
   kickValid_ = false;  // the cached kick is (T/2) Phi a for the old period
-  begun_ = false;
+  if (begun_) invalidate();  // the state is at the begun step's end
 }
 
 void Stepper::rebuild() {
@@ -275,9 +275,9 @@ void Stepper::rebuild() {
     boundSpectrum({});
   }
   refreshDamping({});
+  if (begun_) dropBegunStep();
   cacheValid_ = false;
   kickValid_ = false;
-  begun_ = false;
 }
 
 std::optional<PotentialEnergy> Stepper::internalEnergy() const {
@@ -289,23 +289,38 @@ std::optional<PotentialEnergy> Stepper::internalEnergy() const {
 }
 
 void Stepper::rewind() {
-  // A begun default step left its start forces in internal_ (made, or kept from the step
-  // before) and a first kick for its own loads in kick_.
   const bool begun = begun_;
-  begun_ = false;
-  if (begun && scheme_ == Scheme::Default) {
-    kickValid_ = false;
-    return;
-  }
-  // A default step leaves its end forces in internal_ and its start forces in
-  // previousInternal_ (the swap at its end).
-  if (scheme_ != Scheme::Default || !cacheValid_ || rewound_) {
+  if (begun) dropBegunStep();
+  // Nothing to give back: no default step since the last invalidation, rewind or startAt.
+  if (scheme_ != Scheme::Default || !cacheValid_ || !rewindable_) {
     cacheValid_ = false;
     return;
   }
-  internal_.swap(previousInternal_);
+  rewindable_ = false;
   rewound_ = true;
-  kickValid_ = false;  // the cached kick is the end's
+  kickValid_ = false;  // the cached kick is the end's, or the begun step's
+  // A begun step left its start forces in internal_ (made, or kept from the step before); a
+  // finished one leaves its end forces there and its start forces in previousInternal_
+  // (the swap at its end).
+  if (!begun) internal_.swap(previousInternal_);
+}
+
+void Stepper::invalidate() {
+  if (begun_) dropBegunStep();
+  cacheValid_ = false;
+}
+
+void Stepper::dropBegunStep() {
+  begun_ = false;
+  if (scheme_ != Scheme::Default) return;  // the whole step was taken
+  // The dropped step is the last one now, as far as lastTotalForce() and the next step's
+  // comparison of loads go: its loads are the record (markZeroExternalBlocks), its total
+  // force was written if it had loads and made its kick, and its start forces are in
+  // internal_.
+  rewound_ = true;
+  kickValid_ = false;
+  loadsZero_ = begunZero_;
+  totalForceReady_ = !begunZero_ && !begunKeptKick_;
 }
 
 size_t Stepper::bytes() const {
@@ -360,24 +375,57 @@ const Points& Stepper::lastTotalForce() const {
 }
 
 void Stepper::step(State& state, const Points& external, std::span<const double> share) {
-  beginStep(state, external, share);
-  finishStep(state, external, share);
+  checkStepInputs(state, external);
+  const auto start = std::chrono::steady_clock::now();
+  if (tuning_) threads_ = tuner_.next();
+  takeStep(state, external, share, Part::Whole);  // one parallel region for both parts
+  state.time += period_;
+  if (tuning_)
+    tuner_.record(std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count());
 }
 
 void Stepper::beginStep(State& state, const Points& external, std::span<const double> share) {
+  checkStepInputs(state, external);
+  const auto start = std::chrono::steady_clock::now();
+  if (tuning_) threads_ = tuner_.next();
+  takeStep(state, external, share, Part::Begin);
+  begun_ = true;
+  rewindable_ = scheme_ == Scheme::Default;
+  begunSeconds_ = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+}
+
+void Stepper::finishStep(State& state, const Points& external, std::span<const double> share) {
+  ZSCULPT_ASSERT(begun_, "finishStep without a begun step");
+  const auto start = std::chrono::steady_clock::now();
+  takeStep(state, external, share, Part::Finish);
+  begun_ = false;
+  state.time += period_;
+  // The tuner times the two parts, not what the caller did between them.
+  if (tuning_)
+    tuner_.record(begunSeconds_ +
+                  std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count());
+}
+
+void Stepper::checkStepInputs(const State& state, const Points& external) const {
   ZSCULPT_ASSERT(state.position.rows() == model_.mesh.numVertices() &&
                      state.velocity.rows() == model_.mesh.numVertices() &&
                      external.rows() == model_.mesh.numVertices(),
                  "state or external forces do not match the model");
   ZSCULPT_ASSERT(!begun_, "a begun step must be finished or dropped before the next");
-  begunAt_ = std::chrono::steady_clock::now();
-  if (tuning_) threads_ = tuner_.next();
+}
+
+void Stepper::takeStep(State& state, const Points& external, std::span<const double> share,
+                       Part part) {
+  if (scheme_ == Scheme::Default) {
+    if (filtersDrift())
+      stepDriftFiltered(state, external, share, part);
+    else
+      stepDefault(state, external, share, part);
+    return;
+  }
+  if (part == Part::Finish) return;  // the other schemes take the whole step at the begin
   switch (scheme_) {
     case Scheme::Default:
-      if (filtersDrift())
-        stepDriftFiltered(state, external, share, Part::Begin);
-      else
-        stepDefault(state, external, share, Part::Begin);
       break;
     case Scheme::Paper:
       stepPaper(state, external, share);
@@ -392,22 +440,7 @@ void Stepper::beginStep(State& state, const Points& external, std::span<const do
       stepImplicitEuler(state, external, share);
       break;
   }
-  begun_ = true;
-}
-
-void Stepper::finishStep(State& state, const Points& external, std::span<const double> share) {
-  ZSCULPT_ASSERT(begun_, "finishStep without a begun step");
-  if (scheme_ == Scheme::Default) {
-    if (filtersDrift())
-      stepDriftFiltered(state, external, share, Part::Finish);
-    else
-      stepDefault(state, external, share, Part::Finish);
-  }
-  begun_ = false;
-  state.time += period_;
-  if (tuning_)
-    tuner_.record(
-        std::chrono::duration<double>(std::chrono::steady_clock::now() - begunAt_).count());
+  rewindable_ = false;  // they keep no forces to rewind to
 }
 
 const Points& Stepper::startAt(const Points& position) {
@@ -424,7 +457,8 @@ const Points& Stepper::startAt(const Points& position) {
   }
   cacheValid_ = true;
   rewound_ = false;
-  kickValid_ = false;  // the kept kick is for the last step's end
+  rewindable_ = false;  // internal_ is no step's end any more
+  kickValid_ = false;   // the kept kick is for the last step's end
   return internal_;
 }
 
@@ -443,7 +477,8 @@ const Points* Stepper::turnEndForces(const Mat3& rotation) {
       row[1] = turned.y();
       row[2] = turned.z();
     }
-  kickValid_ = false;  // the kept kick is for the unmoved end
+  kickValid_ = false;   // the kept kick is for the unmoved end
+  rewindable_ = false;  // internal_ is no step's end any more
   return &internal_;
 }
 
@@ -712,6 +747,7 @@ void Stepper::endDefaultPart(Part part, bool loadsZero, bool keptKick, bool shar
   // total force at the start was written with loads and a fresh first kick, else it is made
   // on demand.
   internal_.swap(previousInternal_);
+  rewindable_ = true;
   totalForceReady_ = !loadsZero && !keptKick;
   keptKick_ = keptKick;
   cacheValid_ = true;
@@ -756,7 +792,7 @@ void Stepper::stepDefault(State& s, const Points& external, std::span<const doub
   in.inner = inner;
   in.value = value;
   in.dampHalf = dampHalf_.data();
-  const bool begin = part == Part::Begin;
+  const bool begin = part != Part::Finish, finish = part != Part::Begin;
   bool externalZero = begunZero_, reused = begunKeptKick_;
 #pragma omp parallel num_threads(threads_) if (threads_ > 1)
   {
@@ -813,7 +849,8 @@ void Stepper::stepDefault(State& s, const Points& external, std::span<const doub
             }
         });
       }
-    } else {
+    }
+    if (finish) {
       // Internal forces at the new position.
       forces_.scatter(model_, s.position, previousInternal_, options_.measureEnergy);
       const double* f1 = previousInternal_.data();
@@ -902,7 +939,7 @@ void Stepper::stepDriftFiltered(State& s, const Points& external, std::span<cons
       o2.outerIndexPtr(), o2.innerIndexPtr(), o2.valuePtr(), affineBasis_.data(),
       omegaBasis_.data(), massBases,          mass,          coefficient,
       dampHalf_.data()};
-  const bool begin = part == Part::Begin;
+  const bool begin = part != Part::Finish, finish = part != Part::Begin;
   bool externalZero = begunZero_, reused = begunKeptKick_;
 #pragma omp parallel num_threads(threads_) if (threads_ > 1)
   {
@@ -1022,7 +1059,8 @@ void Stepper::stepDriftFiltered(State& s, const Points& external, std::span<cons
 #pragma omp for schedule(static)
       for (Index b = 0; b < blocks; ++b)
         rows.drift(in, forces_.blockBegin(b), forces_.blockEnd(b), term, v, r, t, t2);
-    } else {
+    }
+    if (finish) {
       // Internal forces at the new position, the second kick and damping.
       forces_.scatter(model_, s.position, previousInternal_, options_.measureEnergy);
       filteredKick(previousInternal_.data(), nullptr, true);

@@ -406,7 +406,9 @@ void Simulation::step() {
       }
       subCycle(substeps_ > 1 && loaded ? subStart_ : lastGood_.position);
     }
-  } catch (const DivergenceError&) {
+  } catch (...) {
+    // A divergence, or anything else thrown mid-cycle (the stepper may be inside a begun
+    // step): back to where the cycle started.
     if (substeps_ > 1) setTargets(1.0);
     state_.position = lastGood_.position;
     state_.velocity = lastGood_.velocity;

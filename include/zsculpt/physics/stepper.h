@@ -33,7 +33,6 @@
 #include <Eigen/Dense>
 #include <Eigen/SparseCore>
 #include <array>
-#include <chrono>
 #include <cstdint>
 #include <memory>
 #include <optional>
@@ -154,10 +153,7 @@ class Stepper {
   void rebuild();
   /// Cached internal forces are stale (the state was changed from outside).
   /// Drops a begun step too.
-  void invalidate() {
-    cacheValid_ = false;
-    begun_ = false;
-  }
+  void invalidate();
   /// The state was set back to where the last step started, or the begun one (a constrained
   /// cycle's next trial from the same start): the internal forces there, which that step
   /// kept, serve again instead of being evaluated anew (about a fifth of a drag's cycle); the
@@ -216,8 +212,16 @@ class Stepper {
     bool same = true;
   };
   LoadCheck markZeroExternalBlocks(const Points& external);
-  // The default scheme's two parts (beginStep, finishStep).
-  enum class Part { Begin, Finish };
+  // The default scheme's two parts (beginStep, finishStep), or both in one parallel region
+  // (step).
+  enum class Part { Begin, Finish, Whole };
+  void checkStepInputs(const State& state, const Points& external) const;
+  // The scheme's step, or the part of it (the schemes other than default take the whole
+  // step at Part::Begin and nothing at Part::Finish).
+  void takeStep(State& state, const Points& external, std::span<const double> share, Part part);
+  // A begun step is dropped (rewind, invalidate, an edit): it becomes the last step for the
+  // record of loads and lastTotalForce(), with its start forces in internal_.
+  void dropBegunStep();
   // Its bookkeeping after each: after the begin, what the finish needs of its loads; after
   // the finish, the swap of its force buffers and what the next step may keep.
   void endDefaultPart(Part part, bool loadsZero, bool keptKick, bool shared);
@@ -267,11 +271,14 @@ class Stepper {
   bool kickValid_ = false;
   bool keptKick_ = false;
   // beginStep() ran and finishStep() has not: what the begun step found of its loads, and
-  // when it began (the thread tuner times begin and finish together).
+  // how long it took (the thread tuner times begin and finish together).
   bool begun_ = false;
   bool begunZero_ = true;
   bool begunKeptKick_ = false;
-  std::chrono::steady_clock::time_point begunAt_;
+  double begunSeconds_ = 0.0;
+  // rewind() has a step to give back: a default step finished or begun since the last
+  // rewind, startAt or turnEndForces.
+  bool rewindable_ = false;
   // Per vertex: exp(-g T) (half a step of damping, default scheme) and exp(-2 g T).
   VectorX dampHalf_, dampFull_;
   // Per block: are the external forces of its rows zero (a zero's sign aside: such loads are

@@ -135,15 +135,17 @@ class Simulation {
   /// that could not be met).
   std::vector<std::string> takeWarnings();
 
-  /// One cycle. Throws DivergenceError if the state becomes non-finite (the state is then
-  /// left at the last finite one).
+  /// One cycle. Throws DivergenceError if the state becomes non-finite; on that or any other
+  /// error the state is left at the last finite one, where the cycle started.
   void step();
 
-  /// Energy and momentum of the current state. After a cycle without rigid motion (default
-  /// scheme) the radial and angular energy come from the step's own force pass at the end
-  /// position (Stepper::internalEnergy), which agrees with measure()'s to rounding and costs
-  /// the step a few per cent instead of a pass over every spring; otherwise they are
-  /// evaluated as measure() does.
+  /// Energy and momentum of the current state. After a cycle of the default scheme the
+  /// radial and angular energy come from the step's own force pass at the end position
+  /// (Stepper::internalEnergy; with rigid motion, which moves the vertices after the
+  /// elastic step and does not change the springs' energy, that of the elastic end), which
+  /// agrees with measure()'s to rounding and costs the step a few per cent instead of a pass
+  /// over every spring; otherwise (another scheme, a fully rigid model, after an edit or
+  /// setState) they are evaluated as measure() does.
   [[nodiscard]] Diagnostics diagnostics() const;
   /// External forces applied during the last step of the last cycle (N x 3, torques as
   /// virtual forces).
