@@ -1335,6 +1335,34 @@ TEST(Stepper, ANewPeriodStepsAsAStepperBuiltForIt) {
   EXPECT_THROW(changed.setPeriod(0.0), InvalidInputError);
 }
 
+namespace {
+
+// The trials' model: a torus of two blocks (ForceKernel) with angle springs, damping and
+// gravity, its period a fraction of T_max, and two loads on vertex 3.
+struct TrialTorus {
+  Model model;
+  double dt = 0.0;
+  Index n = 0;
+  Points first, second, none;
+};
+
+TrialTorus trialTorus(double periodRatio) {
+  UniformProperties u;
+  u.angularStiffness = 0.2;
+  u.damping = 0.01;
+  u.gravity = Vec3(0.0, 0.0, -9.81);
+  TrialTorus t;
+  t.model = Model::fromMesh(makeTorus(40, 30), u);
+  t.dt = periodRatio * criticalPeriod(SystemMatrices(t.model));
+  t.n = t.model.mesh.numVertices();
+  t.first = t.second = t.none = Points::Zero(t.n, 3);
+  t.first.row(3) << 0.5, 0.0, -0.2;
+  t.second.row(3) << 0.1, 0.3, 0.0;
+  return t;
+}
+
+}  // namespace
+
 TEST(Stepper, ARewoundStepRetakenFromItsStartIsAFreshStepBitForBit) {
   // A constrained cycle's second trial starts where the first did: rewind() gives the step
   // back the start forces it kept. Retaken under other loads, from the same start, the step
@@ -1342,16 +1370,11 @@ TEST(Stepper, ARewoundStepRetakenFromItsStartIsAFreshStepBitForBit) {
   // (two trials under different loads) and the kick filter alone (both without: the first
   // trial's end kick is cached, and must not be reused); in between, the stepper has no
   // energy to offer and lastTotalForce() is the rewound step's start.
-  UniformProperties u;
-  u.angularStiffness = 0.2;
-  u.damping = 0.01;
-  u.gravity = Vec3(0.0, 0.0, -9.81);
-  const Model model = Model::fromMesh(makeTorus(40, 30), u);  // two blocks
-  const double dt = 0.8 * criticalPeriod(SystemMatrices(model));
-  const Index n = model.mesh.numVertices();
-  Points first = Points::Zero(n, 3), second = Points::Zero(n, 3), none = Points::Zero(n, 3);
-  first.row(3) << 0.5, 0.0, -0.2;
-  second.row(3) << 0.1, 0.3, 0.0;
+  const TrialTorus t = trialTorus(0.8);
+  const Model& model = t.model;
+  const double dt = t.dt;
+  const Index n = t.n;
+  const Points &first = t.first, &second = t.second, &none = t.none;
   for (bool drift : {true, false}) {
     StepperOptions options;
     options.driftFilter = drift;
@@ -1408,16 +1431,10 @@ TEST(Stepper, ABegunStepIsTheWholeStepAndADroppedOneLeavesNoTrace) {
   // dropped trials under other loads is the step taken without them, and so is the step
   // after it (which keeps its kick again). Between the parts the stepper has no energy to
   // offer and the time has not moved.
-  UniformProperties u;
-  u.angularStiffness = 0.2;
-  u.damping = 0.01;
-  u.gravity = Vec3(0.0, 0.0, -9.81);
-  const Model model = Model::fromMesh(makeTorus(40, 30), u);  // two blocks
-  const double dt = 0.8 * criticalPeriod(SystemMatrices(model));
-  const Index n = model.mesh.numVertices();
-  Points first = Points::Zero(n, 3), second = Points::Zero(n, 3);
-  first.row(3) << 0.5, 0.0, -0.2;
-  second.row(3) << 0.1, 0.3, 0.0;
+  const TrialTorus t = trialTorus(0.8);
+  const Model& model = t.model;
+  const double dt = t.dt;
+  const Points &first = t.first, &second = t.second;
   for (Scheme scheme : {Scheme::Default, Scheme::Paper, Scheme::SymplecticEuler})
     for (bool drift : {true, false}) {
       if (scheme != Scheme::Default && !drift) continue;
@@ -1486,15 +1503,11 @@ TEST(Stepper, WhatCannotBeRewoundIsEvaluatedAfresh) {
   // while a step is begun, must act as invalidate(): the step after each is the bits of a
   // twin stepper that was invalidated instead. And a dropped step is the last step for
   // lastTotalForce(): its start forces, loads and gravity.
-  UniformProperties u;
-  u.angularStiffness = 0.2;
-  u.gravity = Vec3(0.0, 0.0, -9.81);
-  const Model model = Model::fromMesh(makeTorus(40, 30), u);  // two blocks
-  const double dt = 0.5 * criticalPeriod(SystemMatrices(model));
-  const Index n = model.mesh.numVertices();
-  Points first = Points::Zero(n, 3), second = Points::Zero(n, 3);
-  first.row(3) << 0.5, 0.0, -0.2;
-  second.row(3) << 0.1, 0.3, 0.0;
+  const TrialTorus t = trialTorus(0.5);
+  const Model& model = t.model;
+  const double dt = t.dt;
+  const Index n = t.n;
+  const Points &first = t.first, &second = t.second;
   for (bool drift : {true, false}) {
     StepperOptions options;
     options.driftFilter = drift;
@@ -1580,14 +1593,11 @@ TEST(Stepper, StartAtGivesTheForcesTheNextStepStartsFrom) {
   // that position, and the step from there is the step with its start forces evaluated
   // afresh, bit for bit, with a share (the rigid coupling's) and without. The last step's
   // total force outlives them, a rewound step's too.
-  UniformProperties u;
-  u.angularStiffness = 0.2;
-  u.gravity = Vec3(0.0, 0.0, -9.81);
-  const Model model = Model::fromMesh(makeTorus(40, 30), u);  // two blocks
-  const double dt = 0.5 * criticalPeriod(SystemMatrices(model));
-  const Index n = model.mesh.numVertices();
-  Points load = Points::Zero(n, 3);
-  load.row(7) << 0.2, -0.1, 0.4;
+  const TrialTorus t = trialTorus(0.5);
+  const Model& model = t.model;
+  const double dt = t.dt;
+  const Index n = t.n;
+  const Points& load = t.first;
   const std::vector<double> share(static_cast<size_t>(n), 0.6);
   for (bool shared : {false, true}) {
     StepperOptions options;
@@ -1637,12 +1647,11 @@ TEST(Stepper, TurnedEndForcesAreTheForcesWhereARigidMotionTookTheModel) {
   // the next step's start forces: the kernel's forces at the moved positions to rounding,
   // and the step from there is a fresh one to rounding. With no end forces cached it gives
   // nothing and changes nothing.
-  UniformProperties u;
-  u.angularStiffness = 0.2;
-  const Model model = Model::fromMesh(makeTorus(40, 30), u);  // two blocks
-  const double dt = 0.5 * criticalPeriod(SystemMatrices(model));
-  const Index n = model.mesh.numVertices();
-  const Points none = Points::Zero(n, 3);
+  const TrialTorus t = trialTorus(0.5);
+  const Model& model = t.model;
+  const double dt = t.dt;
+  const Index n = t.n;
+  const Points& none = t.none;
   const std::vector<double> share(static_cast<size_t>(n), 0.6);
   StepperOptions options;
   options.measureEnergy = true;
