@@ -767,7 +767,8 @@ void Stepper::stepDefault(State& s, const Points& external, std::span<const doub
   // same expression as accelerationRows) instead of being stored and read back. The first
   // kick equals the last step's second one while nothing but the position changed (same
   // internal forces, the same external forces, no share): it is kept in kick_. Part::Begin
-  // takes the first kick and the drift, Part::Finish the rest (beginStep, finishStep).
+  // takes the first kick and the drift, Part::Finish the rest (beginStep, finishStep),
+  // Part::Whole both (step).
   const double t = period_, half = 0.5 * t, filter = t * t * t / 24.0;
   const Index blocks = forces_.numBlocks();
   const bool startCached = cacheValid_;
@@ -910,7 +911,8 @@ void Stepper::stepDriftFiltered(State& s, const Points& external, std::span<cons
   // by one thread, so the result does not depend on the thread count. The first kick
   // equals the last step's second one while nothing but the position changed (same
   // internal forces, the same external forces, no share): it is kept in kick_. Part::Begin
-  // takes the first kick and the drift, Part::Finish the rest (beginStep, finishStep).
+  // takes the first kick and the drift, Part::Finish the rest (beginStep, finishStep),
+  // Part::Whole both (step).
   const int degree = driftDegree_;
   const double* psi = driftA_.data();  // Psi's coefficients a_k at psi[k]
   const double t = period_, half = 0.5 * t, t2 = t * t, filter = t * t * t / 24.0;

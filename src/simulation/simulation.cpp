@@ -457,9 +457,10 @@ void Simulation::subCycle(const Points& start) {
     loadWork_ += (external_.array() * (state_.position - start).array()).sum();
   // Without rigid motion the cycle ends where the stepper's last step ended: the plain cycle
   // steps state_ itself, a constrained one takes its last trial's positions (the velocity
-  // correction moves no vertex). With it, the stepper's last forces are those computeBaseForce
-  // took where the rigid motion ended, which is the state's positions too (a fully rigid
-  // model has none).
+  // correction moves no vertex). With it, the stepper's forces are its end forces turned with
+  // the rigid motion (finishRigid), whose springs' energy the motion did not change, or
+  // those startAt took where the motion ended (a fully rigid model has none; the schemes
+  // other than default report none, and measure() takes over).
   energyAtState_ = !allRigid_;
 }
 
@@ -494,7 +495,8 @@ void Simulation::runTrial(bool constrained, bool first) {
     trial_.time += t;
   } else {
     // The stepper caches internal forces at its last end positions; with rigid motion, which
-    // moved the vertices after that, computeBaseForce has given it those at the cycle's start
+    // moved the vertices after that, finishRigid turned them with the motion
+    // (Stepper::turnEndForces) or computeBaseForce evaluated them where it ended
     // (Stepper::startAt). A later trial of this cycle starts where the earlier one did, whose
     // start forces the stepper kept (rewind).
     if (!first) stepper_->rewind();
