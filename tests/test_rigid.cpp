@@ -5,6 +5,8 @@
 
 #include <cmath>
 #include <numbers>
+#include <random>
+#include <vector>
 
 #include "zsculpt/mesh/builtin.h"
 #include "zsculpt/physics/diagnostics.h"
@@ -222,4 +224,77 @@ TEST(Resultant, WeightedForceAndTorque) {
   EXPECT_NEAR((torque - Vec3(0, 0, 0.75)).norm(), 0.0, 1e-15);
   weightedResultant({}, p, f, Vec3::Zero(), force, torque);
   EXPECT_NEAR(torque.norm(), 0.0, 1e-15);
+}
+
+TEST(RigidPasses, LargeModelsSumInFixedPartsTheSameOnAnyThreadCount) {
+  // Above kRigidPartRows vertices the rigid body's sums run in fixed parts on the step's
+  // threads: one thread and two give the same bits, and the sums agree with one plain loop
+  // to rounding. The per-vertex passes (the rigid motion, the rigid velocity) give the same
+  // rows on any thread count.
+  const Index n = kRigidPartRows + 12345;
+  std::mt19937 random(41);
+  std::uniform_real_distribution<double> unit(-1.0, 1.0);
+  VectorX mass(n);
+  Points position(n, 3), velocity(n, 3), force(n, 3);
+  std::vector<double> weight(static_cast<size_t>(n));
+  for (Index i = 0; i < n; ++i) {
+    mass[i] = 1.5 + unit(random);
+    weight[static_cast<size_t>(i)] = i % 7 == 0 ? 0.0 : 0.5 + 0.5 * unit(random);
+    for (int d = 0; d < 3; ++d) {
+      position(i, d) = 3.0 * unit(random) + (d == 0 ? 10.0 : 0.0);
+      velocity(i, d) = unit(random);
+      force(i, d) = unit(random);
+    }
+  }
+  const MassProperties one = massProperties(mass, position, 1);
+  const MassProperties two = massProperties(mass, position, 2);
+  EXPECT_EQ(one.mass, two.mass);
+  EXPECT_TRUE(one.centre == two.centre);
+  EXPECT_TRUE(one.inertia == two.inertia);
+  // One plain loop, as below kRigidPartRows.
+  double total = 0.0;
+  Vec3 weighted = Vec3::Zero(), resultant = Vec3::Zero(), torque = Vec3::Zero();
+  Vec3 linear = Vec3::Zero(), angular = Vec3::Zero();
+  for (Index i = 0; i < n; ++i) {
+    total += mass[i];
+    weighted += mass[i] * position.row(i).transpose();
+  }
+  const Vec3 centre = weighted / total;
+  Mat3 second = Mat3::Zero();
+  for (Index i = 0; i < n; ++i) {
+    const Vec3 rho = position.row(i).transpose() - centre;
+    second += mass[i] * rho * rho.transpose();
+    const Vec3 f = weight[static_cast<size_t>(i)] * force.row(i).transpose();
+    resultant += f;
+    torque += rho.cross(f);
+    const Vec3 p = mass[i] * velocity.row(i).transpose();
+    linear += p;
+    angular += rho.cross(p);
+  }
+  EXPECT_NEAR(one.mass, total, 1e-12 * total);
+  EXPECT_LT((one.centre - centre).norm(), 1e-12 * centre.norm());
+  const Mat3 inertia = second.trace() * Mat3::Identity() - second;
+  EXPECT_LT((one.inertia - inertia).norm(), 1e-12 * inertia.norm());
+  Vec3 r1, t1, r2, t2;
+  weightedResultant(weight, position, force, one.centre, r1, t1, 1);
+  weightedResultant(weight, position, force, one.centre, r2, t2, 2);
+  EXPECT_TRUE(r1 == r2 && t1 == t2);
+  EXPECT_LT((r1 - resultant).norm(), 1e-10);
+  EXPECT_LT((t1 - torque).norm(), 1e-9);
+  const RigidMomentum m1 = momentumOf(mass, position, velocity, one.centre, 1);
+  const RigidMomentum m2 = momentumOf(mass, position, velocity, one.centre, 2);
+  EXPECT_TRUE(m1.linear == m2.linear && m1.angular == m2.angular);
+  EXPECT_LT((m1.linear - linear).norm(), 1e-10);
+  EXPECT_LT((m1.angular - angular).norm(), 1e-9);
+  Points moved1 = position, moved2 = position, v1 = velocity, v2 = velocity;
+  const Mat3 rotation = rotationFromVector(Vec3(0.3, -0.2, 0.5));
+  applyRigidMotion(one.centre, Vec3(0.1, 0.2, 0.3), rotation, moved1, 1);
+  applyRigidMotion(one.centre, Vec3(0.1, 0.2, 0.3), rotation, moved2, 2);
+  EXPECT_TRUE(moved1 == moved2);
+  const RigidMomentum removed1 = removeRigidMotion(mass, one, position, v1, 1);
+  const RigidMomentum removed2 = removeRigidMotion(mass, one, position, v2, 2);
+  EXPECT_TRUE(v1 == v2);
+  EXPECT_TRUE(removed1.linear == removed2.linear && removed1.angular == removed2.angular);
+  const RigidMomentum left = momentumOf(mass, position, v1, one.centre, 2);
+  EXPECT_LT(left.linear.norm(), 1e-9 * m1.linear.norm() + 1e-9);
 }

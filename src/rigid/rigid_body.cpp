@@ -1,30 +1,82 @@
 #include "zsculpt/rigid/rigid_body.h"
 
 #include <Eigen/Eigenvalues>
+#include <algorithm>
 #include <array>
 #include <cmath>
+#include <cstdint>
 #include <utility>
 
 #include "zsculpt/core/errors.h"
 
 namespace zsculpt {
 
-MassProperties massProperties(const VectorX& mass, const Points& position) {
+namespace {
+
+// Sum over rows [0, n) of body(begin, end, sum), which adds its rows into sum: in one loop up
+// to kRigidPartRows rows, else in kRigidParts fixed parts on up to `threads` threads, added
+// in part order (the same bits on any thread count).
+template <class Sum, class Body>
+Sum sumRows(Index n, int threads, Body&& body) {
+  Sum total = Sum::Zero();
+  if (n <= kRigidPartRows) {
+    body(Index{0}, n, total);
+    return total;
+  }
+  std::array<Sum, kRigidParts> parts;
+  const int team = std::max(1, threads);
+#pragma omp parallel for num_threads(team) if (team > 1) schedule(static)
+  for (int p = 0; p < kRigidParts; ++p) {
+    parts[static_cast<size_t>(p)] = Sum::Zero();
+    body(static_cast<Index>(std::int64_t{n} * p / kRigidParts),
+         static_cast<Index>(std::int64_t{n} * (p + 1) / kRigidParts),
+         parts[static_cast<size_t>(p)]);
+  }
+  for (const Sum& part : parts) total += part;
+  return total;
+}
+
+// body(begin, end) over rows [0, n), in parts on up to `threads` threads above
+// kRigidPartRows rows (each row's result does not depend on the split).
+template <class Body>
+void forRows(Index n, int threads, Body&& body) {
+  if (n <= kRigidPartRows || threads <= 1) {
+    body(Index{0}, n);
+    return;
+  }
+#pragma omp parallel for num_threads(threads) schedule(static)
+  for (int p = 0; p < kRigidParts; ++p)
+    body(static_cast<Index>(std::int64_t{n} * p / kRigidParts),
+         static_cast<Index>(std::int64_t{n} * (p + 1) / kRigidParts));
+}
+
+}  // namespace
+
+MassProperties massProperties(const VectorX& mass, const Points& position, int threads) {
   ZSCULPT_ASSERT(mass.size() == position.rows(), "massProperties: one mass per vertex");
   MassProperties p;
-  Vec3 weighted = Vec3::Zero();
-  for (Index i = 0; i < position.rows(); ++i) {
-    p.mass += mass[i];
-    weighted += mass[i] * position.row(i).transpose();
-  }
+  const Index n = position.rows();
+  // (total mass, sum m r)
+  const Eigen::Vector4d first =
+      sumRows<Eigen::Vector4d>(n, threads, [&](Index begin, Index end, Eigen::Vector4d& sum) {
+        double total = sum[0];
+        Vec3 weighted = sum.tail<3>();
+        for (Index i = begin; i < end; ++i) {
+          total += mass[i];
+          weighted += mass[i] * position.row(i).transpose();
+        }
+        sum << total, weighted;
+      });
+  p.mass = first[0];
   if (!(p.mass > 0.0)) return p;
-  p.centre = weighted / p.mass;
+  p.centre = first.tail<3>() / p.mass;
   // Second moment S = sum m rho rho^T, then I = tr(S) 1 - S.
-  Mat3 second = Mat3::Zero();
-  for (Index i = 0; i < position.rows(); ++i) {
-    const Vec3 rho = position.row(i).transpose() - p.centre;
-    second.noalias() += mass[i] * rho * rho.transpose();
-  }
+  const Mat3 second = sumRows<Mat3>(n, threads, [&](Index begin, Index end, Mat3& sum) {
+    for (Index i = begin; i < end; ++i) {
+      const Vec3 rho = position.row(i).transpose() - p.centre;
+      sum.noalias() += mass[i] * rho * rho.transpose();
+    }
+  });
   p.inertia = second.trace() * Mat3::Identity() - second;
   return p;
 }
@@ -110,27 +162,39 @@ Mat3 freeRotation(const Mat3& inertia, const Vec3& angularMomentum, double dt) {
   return axes * turned * axes.transpose();
 }
 
-void weightedResultant(std::span<const double> weight, const Points& position,
-                       const Points& force, const Vec3& centre, Vec3& resultant, Vec3& torque) {
-  resultant.setZero();
-  torque.setZero();
-  for (Index i = 0; i < position.rows(); ++i) {
-    const double w = weight.empty() ? 1.0 : weight[static_cast<size_t>(i)];
-    if (w == 0.0) continue;
-    const Vec3 f = w * force.row(i).transpose();
-    resultant += f;
-    torque += (position.row(i).transpose() - centre).cross(f);
-  }
+void weightedResultant(std::span<const double> weight, const Points& position, const Points& force,
+                       const Vec3& centre, Vec3& resultant, Vec3& torque, int threads) {
+  using Sum = Eigen::Matrix<double, 6, 1>;  // resultant, torque
+  const Sum total = sumRows<Sum>(position.rows(), threads, [&](Index begin, Index end, Sum& sum) {
+    Vec3 r = sum.head<3>(), t = sum.tail<3>();
+    for (Index i = begin; i < end; ++i) {
+      const double w = weight.empty() ? 1.0 : weight[static_cast<size_t>(i)];
+      if (w == 0.0) continue;
+      const Vec3 f = w * force.row(i).transpose();
+      r += f;
+      t += (position.row(i).transpose() - centre).cross(f);
+    }
+    sum << r, t;
+  });
+  resultant = total.head<3>();
+  torque = total.tail<3>();
 }
 
 RigidMomentum momentumOf(const VectorX& mass, const Points& position, const Points& velocity,
-                         const Vec3& centre) {
+                         const Vec3& centre, int threads) {
+  using Sum = Eigen::Matrix<double, 6, 1>;  // linear, angular
+  const Sum total = sumRows<Sum>(position.rows(), threads, [&](Index begin, Index end, Sum& sum) {
+    Vec3 linear = sum.head<3>(), angular = sum.tail<3>();
+    for (Index i = begin; i < end; ++i) {
+      const Vec3 p = mass[i] * velocity.row(i).transpose();
+      linear += p;
+      angular += (position.row(i).transpose() - centre).cross(p);
+    }
+    sum << linear, angular;
+  });
   RigidMomentum m;
-  for (Index i = 0; i < position.rows(); ++i) {
-    const Vec3 p = mass[i] * velocity.row(i).transpose();
-    m.linear += p;
-    m.angular += (position.row(i).transpose() - centre).cross(p);
-  }
+  m.linear = total.head<3>();
+  m.angular = total.tail<3>();
   return m;
 }
 
@@ -156,29 +220,33 @@ RigidMomentum rigidKick(const RigidMomentum& half, const Vec3& force, const Vec3
 }
 
 void applyRigidMotion(const Vec3& pivot, const Vec3& translation, const Mat3& rotation,
-                      Points& position) {
+                      Points& position, int threads) {
   const Vec3 target = pivot + translation;
-  for (Index i = 0; i < position.rows(); ++i) {
-    const Vec3 rho = position.row(i).transpose() - pivot;
-    position.row(i) = (target + rotation * rho).transpose();
-  }
+  forRows(position.rows(), threads, [&](Index begin, Index end) {
+    for (Index i = begin; i < end; ++i) {
+      const Vec3 rho = position.row(i).transpose() - pivot;
+      position.row(i) = (target + rotation * rho).transpose();
+    }
+  });
 }
 
 void addRigidVelocity(const MassProperties& properties, const RigidMomentum& momentum,
-                      const Points& position, Points& velocity, double scale) {
+                      const Points& position, Points& velocity, double scale, int threads) {
   if (!(properties.mass > 0.0)) return;
   const Vec3 v = momentum.linear / properties.mass;
   const Vec3 omega = angularVelocity(properties.inertia, momentum.angular);
-  for (Index i = 0; i < position.rows(); ++i) {
-    const Vec3 rho = position.row(i).transpose() - properties.centre;
-    velocity.row(i) += (scale * (v + omega.cross(rho))).transpose();
-  }
+  forRows(position.rows(), threads, [&](Index begin, Index end) {
+    for (Index i = begin; i < end; ++i) {
+      const Vec3 rho = position.row(i).transpose() - properties.centre;
+      velocity.row(i) += (scale * (v + omega.cross(rho))).transpose();
+    }
+  });
 }
 
 RigidMomentum removeRigidMotion(const VectorX& mass, const MassProperties& properties,
-                                const Points& position, Points& velocity) {
-  const RigidMomentum m = momentumOf(mass, position, velocity, properties.centre);
-  addRigidVelocity(properties, m, position, velocity, -1.0);
+                                const Points& position, Points& velocity, int threads) {
+  const RigidMomentum m = momentumOf(mass, position, velocity, properties.centre, threads);
+  addRigidVelocity(properties, m, position, velocity, -1.0, threads);
   // What was removed: M V and I omega (I omega = L unless the inertia is singular).
   RigidMomentum removed;
   removed.linear = m.linear;

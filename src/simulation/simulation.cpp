@@ -539,7 +539,7 @@ void Simulation::runTrial(bool constrained, bool first) {
     }
   }
   drift_ = rigidDrift(start_, rigidMomentum_, force, torque, t, rigidDamping_);
-  applyRigidMotion(elasticCentre_, drift_.translation, drift_.rotation, trial_.position);
+  applyRigidMotion(elasticCentre_, drift_.translation, drift_.rotation, trial_.position, threads);
 }
 
 void Simulation::finishTrial() {
@@ -556,7 +556,7 @@ void Simulation::finishTrial() {
 void Simulation::finishRigid() {
   const double t = stepper_->period();
   const VectorX& mass = model_.properties.mass;
-  end_ = massProperties(mass, trial_.position);
+  end_ = massProperties(mass, trial_.position, stepper_->threads());
   // Second half kick with the forces at the end of the drift (velocity Verlet); they are
   // also the next cycle's start forces. The rigid motion turned the elastic step's end
   // positions, and their internal forces turn with them: the step's end forces turned by
@@ -587,7 +587,8 @@ void Simulation::finishRigid() {
       totalForce_.row(support[a]) += all.row(static_cast<Index>(a)) - couples.row(static_cast<Index>(a));
   }
   Vec3 force, torque;
-  weightedResultant(chi_, trial_.position, totalForce_, end_.centre, force, torque);
+  weightedResultant(chi_, trial_.position, totalForce_, end_.centre, force, torque,
+                    stepper_->threads());
   rigidMomentum_ = rigidKick(drift_.half, force, torque, t, rigidDamping_);
   deformation_ = trial_.velocity;
   if (allRigid_) {
@@ -608,10 +609,12 @@ void Simulation::finishRigid() {
     if (settings_.rigidFrame == RigidFrame::Body)
       for (Index i = 0; i < deformation_.rows(); ++i)
         deformation_.row(i) = (drift_.rotation * deformation_.row(i).transpose()).transpose();
-    RigidMomentum moved = removeRigidMotion(mass, end_, trial_.position, deformation_);
+    RigidMomentum moved =
+        removeRigidMotion(mass, end_, trial_.position, deformation_, stepper_->threads());
     moved.linear += gained;
     Vec3 unused, endTorque;
-    weightedResultant(sigma_, trial_.position, totalForce_, end_.centre, unused, endTorque);
+    weightedResultant(sigma_, trial_.position, totalForce_, end_.centre, unused, endTorque,
+                      stepper_->threads());
     Vec3 startTorque = startElasticTorque_;
     if (!constraints_.empty()) {
       const auto support = solver_.support();
@@ -626,7 +629,8 @@ void Simulation::finishRigid() {
   }
   state_.position = trial_.position;
   state_.velocity = deformation_;
-  addRigidVelocity(end_, rigidMomentum_, state_.position, state_.velocity);
+  addRigidVelocity(end_, rigidMomentum_, state_.position, state_.velocity, 1.0,
+                   stepper_->threads());
 }
 
 void Simulation::coupledStep() {
@@ -661,14 +665,14 @@ void Simulation::coupledStep() {
   copyPoints(rigidActive_ ? deformation_ : state_.velocity, elasticStart_.velocity, threads);
   elasticStart_.time = state_.time;
   if (rigidActive_) {
-    start_ = massProperties(mass, state_.position);
+    start_ = massProperties(mass, state_.position, threads);
     if (!baseForceValid_) computeBaseForce(state_.position);
     totalForce_ = baseForce_ + external_;
     weightedResultant(chi_, state_.position, totalForce_, start_.centre, startRigidForce_,
-                      startRigidTorque_);
+                      startRigidTorque_, threads);
     Vec3 unused;
     weightedResultant(sigma_, state_.position, totalForce_, start_.centre, unused,
-                      startElasticTorque_);
+                      startElasticTorque_, threads);
   }
   // The constraint forces are zero outside the support, whose rows every trial writes (below):
   // they need clearing only when the support changed (above), or without constraints.
@@ -752,7 +756,8 @@ void Simulation::coupledStep() {
     if (rigidActive_ && !allRigid_) {
       // The corrections' momentum and angular momentum go to the rigid body at once, so
       // the deformation starts every cycle with none (the vertex velocities are unchanged).
-      const RigidMomentum moved = removeRigidMotion(mass, end_, state_.position, deformation_);
+      const RigidMomentum moved =
+          removeRigidMotion(mass, end_, state_.position, deformation_, threads);
       rigidMomentum_.linear += moved.linear;
       rigidMomentum_.angular += moved.angular;
     }

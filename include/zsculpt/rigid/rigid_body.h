@@ -36,8 +36,14 @@ struct MassProperties {
   Mat3 inertia = Mat3::Zero();
 };
 
+/// The passes over every vertex below take `threads` (the stepper's): above
+/// kRigidPartRows vertices their sums run in kRigidParts fixed contiguous parts, added in
+/// part order, so that the result is the same bits on any thread count; below, one loop.
+inline constexpr Index kRigidPartRows = 50000;
+inline constexpr int kRigidParts = 64;
+
 /// Lumped thin-shell mass properties: vertex masses `mass` at `position` (N x 3).
-MassProperties massProperties(const VectorX& mass, const Points& position);
+MassProperties massProperties(const VectorX& mass, const Points& position, int threads = 1);
 
 /// Inertia tensor, about its own centre (written to `centre` if given), of `totalMass`
 /// spread uniformly by area over the faces (polygons fan-triangulated from their first
@@ -59,8 +65,8 @@ Mat3 freeRotation(const Mat3& inertia, const Vec3& angularMomentum, double dt);
 
 /// Resultant force sum_i w_i F_i and torque sum_i (r_i - centre) x w_i F_i of the weighted
 /// forces. An empty `weight` means 1 everywhere.
-void weightedResultant(std::span<const double> weight, const Points& position,
-                       const Points& force, const Vec3& centre, Vec3& resultant, Vec3& torque);
+void weightedResultant(std::span<const double> weight, const Points& position, const Points& force,
+                       const Vec3& centre, Vec3& resultant, Vec3& torque, int threads = 1);
 
 /// Momenta of the rigid component: linear P (= M V) and angular L about the centre of mass
 /// (= I omega), world frame.
@@ -71,7 +77,7 @@ struct RigidMomentum {
 
 /// P and L (about `centre`) of a velocity field.
 RigidMomentum momentumOf(const VectorX& mass, const Points& position, const Points& velocity,
-                         const Vec3& centre);
+                         const Vec3& centre, int threads = 1);
 
 /// The first half of a Newton-Euler kick-drift-kick step: damping over dt/2 (exponential,
 /// rate `damping`), a half kick by force and torque, then the drift over dt: the centre of
@@ -91,17 +97,18 @@ RigidMomentum rigidKick(const RigidMomentum& half, const Vec3& force, const Vec3
 
 /// r_i <- pivot + translation + rotation (r_i - pivot), for every row.
 void applyRigidMotion(const Vec3& pivot, const Vec3& translation, const Mat3& rotation,
-                      Points& position);
+                      Points& position, int threads = 1);
 
 /// v_i += scale (V + omega x (r_i - c)) with V = P / M and omega = I^+ L.
 void addRigidVelocity(const MassProperties& properties, const RigidMomentum& momentum,
-                      const Points& position, Points& velocity, double scale = 1.0);
+                      const Points& position, Points& velocity, double scale = 1.0,
+                      int threads = 1);
 
 /// Tisserand projection: removes from `velocity` the rigid motion that carries its linear
 /// and angular momentum (about properties.centre), so that what is left has zero momentum
 /// and zero angular momentum (when the inertia is invertible); returns the momenta removed.
 /// Kinetic energy splits exactly into the removed rigid part and what is left.
 RigidMomentum removeRigidMotion(const VectorX& mass, const MassProperties& properties,
-                                const Points& position, Points& velocity);
+                                const Points& position, Points& velocity, int threads = 1);
 
 }  // namespace zsculpt
