@@ -3,6 +3,8 @@
 #include <array>
 #include <cstdint>
 
+#include "zsculpt/core/parts.h"
+
 #ifdef _OPENMP
 #include <omp.h>
 #endif
@@ -21,21 +23,21 @@ Diagnostics measureKinematics(const VectorX& mass, const State& state) {
   };
   std::array<Part, kParts> parts;
   const std::int64_t n = state.position.rows();
-  auto begin = [n](int part) { return static_cast<Index>(n * part / kParts); };
 #ifdef _OPENMP
-  const bool parallel = n > 50000 && omp_in_parallel() == 0;
+  const int threads = omp_in_parallel() ? 1 : omp_get_max_threads();
+#else
+  const int threads = 1;
 #endif
-#pragma omp parallel for schedule(static) if (parallel)
-  for (int k = 0; k < kParts; ++k) {
+  forEachPart<kParts>(n, threads, 50000, [&](int k, Index begin, Index end) {
     Part& p = parts[static_cast<size_t>(k)];
-    for (Index i = begin(k); i < begin(k + 1); ++i) {
+    for (Index i = begin; i < end; ++i) {
       const Vec3 v = state.velocity.row(i).transpose();
       p.kinetic += 0.5 * mass[i] * v.squaredNorm();
       p.momentum += mass[i] * v;
       p.weighted += mass[i] * state.position.row(i).transpose();
       p.mass += mass[i];
     }
-  }
+  });
   Diagnostics d;
   Vec3 weighted = Vec3::Zero();
   for (const Part& p : parts) {
@@ -45,14 +47,13 @@ Diagnostics measureKinematics(const VectorX& mass, const State& state) {
     d.totalMass += p.mass;
   }
   d.centreOfMass = weighted / d.totalMass;
-#pragma omp parallel for schedule(static) if (parallel)
-  for (int k = 0; k < kParts; ++k) {
+  forEachPart<kParts>(n, threads, 50000, [&](int k, Index begin, Index end) {
     Part& p = parts[static_cast<size_t>(k)];
-    for (Index i = begin(k); i < begin(k + 1); ++i) {
+    for (Index i = begin; i < end; ++i) {
       const Vec3 r = state.position.row(i).transpose() - d.centreOfMass;
       p.angular += mass[i] * r.cross(Vec3(state.velocity.row(i).transpose()));
     }
-  }
+  });
   for (const Part& p : parts) d.angularMomentum += p.angular;
   return d;
 }

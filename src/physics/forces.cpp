@@ -8,6 +8,8 @@
 #include <cstdint>
 #include <numbers>
 
+#include "zsculpt/core/parts.h"
+
 #ifdef _OPENMP
 #include <omp.h>
 #endif
@@ -137,11 +139,6 @@ inline double angleBeta(double s, double c, double rest, double& excess) {
 // potentialEnergy's and gravityEnergy's sums are taken in this many fixed contiguous parts,
 // added in part order: the same bits whatever the thread count.
 constexpr int kParts = 64;
-
-// The first of `count` items in part `part` of `parts` equal contiguous parts.
-inline Index partBegin(std::int64_t count, int part, int parts) {
-  return static_cast<Index>(count * part / parts);
-}
 
 // potentialEnergy's terms in batches, vectorised (square roots, atan2s), gathered by the
 // caller, which adds them in order so that every machine sums alike.

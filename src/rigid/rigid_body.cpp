@@ -8,46 +8,30 @@
 #include <utility>
 
 #include "zsculpt/core/errors.h"
+#include "zsculpt/core/parts.h"
 
 namespace zsculpt {
 
 namespace {
 
 // Sum over rows [0, n) of body(begin, end, sum), which adds its rows into sum: in one loop up
-// to kRigidPartRows rows, else in kRigidParts fixed parts on up to `threads` threads, added
-// in part order (the same bits on any thread count).
+// to kRigidPartRows rows, else in kRigidParts fixed parts on up to `threads` threads.
 template <class Sum, class Body>
 Sum sumRows(Index n, int threads, Body&& body) {
-  Sum total = Sum::Zero();
   if (n <= kRigidPartRows) {
+    Sum total = Sum::Zero();
     body(Index{0}, n, total);
     return total;
   }
-  std::array<Sum, kRigidParts> parts;
-  const int team = std::max(1, threads);
-#pragma omp parallel for num_threads(team) if (team > 1) schedule(static)
-  for (int p = 0; p < kRigidParts; ++p) {
-    parts[static_cast<size_t>(p)] = Sum::Zero();
-    body(static_cast<Index>(std::int64_t{n} * p / kRigidParts),
-         static_cast<Index>(std::int64_t{n} * (p + 1) / kRigidParts),
-         parts[static_cast<size_t>(p)]);
-  }
-  for (const Sum& part : parts) total += part;
-  return total;
+  return sumInParts<kRigidParts>(n, threads, 0, Sum(Sum::Zero()), body);
 }
 
-// body(begin, end) over rows [0, n), in parts on up to `threads` threads above
-// kRigidPartRows rows (each row's result does not depend on the split).
+// body(begin, end) over rows [0, n), in parts on `threads` threads above kRigidPartRows
+// rows (each row's result does not depend on the split).
 template <class Body>
 void forRows(Index n, int threads, Body&& body) {
-  if (n <= kRigidPartRows || threads <= 1) {
-    body(Index{0}, n);
-    return;
-  }
-#pragma omp parallel for num_threads(threads) schedule(static)
-  for (int p = 0; p < kRigidParts; ++p)
-    body(static_cast<Index>(std::int64_t{n} * p / kRigidParts),
-         static_cast<Index>(std::int64_t{n} * (p + 1) / kRigidParts));
+  forEachPart<kRigidParts>(n, threads, kRigidPartRows,
+                           [&](int, Index begin, Index end) { body(begin, end); });
 }
 
 }  // namespace

@@ -8,6 +8,7 @@
 #include <string>
 
 #include "zsculpt/core/errors.h"
+#include "zsculpt/core/parts.h"
 
 namespace zsculpt {
 
@@ -150,18 +151,6 @@ void checkLoad(const TimedLoad& load, Index n, const char* what) {
     throw InvalidInputError(std::string(what) + ": ends before it starts");
 }
 
-// body(part, begin, end) for each of kParts fixed contiguous parts of [0, n), on `threads`
-// threads when n is above `serialUpTo` (the cycle's passes over the whole state: serial, the
-// step's other thread waited through them).
-template <int kParts, class Body>
-void forEachPart(std::int64_t n, int threads, std::int64_t serialUpTo, Body&& body) {
-  // clang-format off
-#pragma omp parallel for num_threads(threads) if (threads > 1 && n > serialUpTo)
-  // clang-format on
-  for (int part = 0; part < kParts; ++part)
-    body(part, static_cast<Index>(n * part / kParts), static_cast<Index>(n * (part + 1) / kParts));
-}
-
 // Whether every coordinate is finite.
 bool allFinite(const Points& x, int threads) {
   const Eigen::Map<const VectorX> flat(x.data(), x.size());
@@ -196,26 +185,19 @@ void addPoints(const Points& a, const Points& b, Points& out, int threads) {
 // The centre of mass sum_i m_i x_i / sum_i m_i, summed in 64 fixed parts added in order: the
 // same bits on any thread count.
 Vec3 weightedCentre(const VectorX& mass, const Points& x, int threads) {
-  constexpr int kParts = 64;
-  std::array<Vec3, kParts> weighted;
-  std::array<double, kParts> total{};
-  forEachPart<kParts>(x.rows(), threads, 50000, [&](int part, Index begin, Index end) {
-    Vec3 sum = Vec3::Zero();
-    double m = 0.0;
-    for (Index i = begin; i < end; ++i) {
-      sum += mass[i] * x.row(i).transpose();
-      m += mass[i];
-    }
-    weighted[static_cast<size_t>(part)] = sum;
-    total[static_cast<size_t>(part)] = m;
-  });
-  Vec3 sum = Vec3::Zero();
-  double m = 0.0;
-  for (int part = 0; part < kParts; ++part) {
-    sum += weighted[static_cast<size_t>(part)];
-    m += total[static_cast<size_t>(part)];
-  }
-  return sum / m;
+  // (sum m x, sum m)
+  const Eigen::Vector4d total =
+      sumInParts<64>(x.rows(), threads, 50000, Eigen::Vector4d(Eigen::Vector4d::Zero()),
+                     [&](Index begin, Index end, Eigen::Vector4d& sum) {
+                       Vec3 weighted = sum.head<3>();
+                       double m = sum[3];
+                       for (Index i = begin; i < end; ++i) {
+                         weighted += mass[i] * x.row(i).transpose();
+                         m += mass[i];
+                       }
+                       sum << weighted, m;
+                     });
+  return total.head<3>() / total[3];
 }
 
 }  // namespace
@@ -503,8 +485,7 @@ void Simulation::runTrial(bool constrained, bool first) {
     // A constrained trial is kept only if it meets the constraints, which its end positions
     // tell: the step is finished once one does (finishTrial), and a dropped trial costs the
     // kick and the drift, not the forces at its end and the second kick.
-    const std::span<const double> share =
-        rigidActive_ ? std::span<const double>(sigma_) : std::span<const double>();
+    const std::span<const double> share = stepperShare();
     if (constrained) {
       stepper_->beginStep(trial_, *load, share);
       // The rigid motion (below) moves the vertices; the step is finished where it ended.
@@ -544,8 +525,7 @@ void Simulation::runTrial(bool constrained, bool first) {
 
 void Simulation::finishTrial() {
   if (!stepper_->stepBegun()) return;  // fully rigid: no elastic step
-  const std::span<const double> share =
-      rigidActive_ ? std::span<const double>(sigma_) : std::span<const double>();
+  const std::span<const double> share = stepperShare();
   // The second part reads the positions (the forces there) and changes only the velocity:
   // the elastic end positions are swapped in for it and out again (two pointer swaps).
   if (rigidActive_) trial_.position.swap(elasticEnd_);
@@ -654,9 +634,7 @@ void Simulation::coupledStep() {
     warnedUnmet_ = false;
   }
   if (constrained && !responseValid_) {
-    response_.buildElastic(*stepper_, model_,
-                           rigidActive_ ? std::span<const double>(sigma_) : std::span<const double>(),
-                           solver_.support());
+    response_.buildElastic(*stepper_, model_, stepperShare(), solver_.support());
     responseValid_ = true;
   }
 
@@ -737,9 +715,8 @@ void Simulation::coupledStep() {
   }
   state_.time = trial_.time;
   if (constrained) {
-    solver_.velocityCorrection(
-        t, elasticStart_.position, state_.position, state_.velocity, mass,
-        rigidActive_ ? std::span<const double>(sigma_) : std::span<const double>(), velocityDelta_);
+    solver_.velocityCorrection(t, elasticStart_.position, state_.position, state_.velocity, mass,
+                               stepperShare(), velocityDelta_);
     const auto support = solver_.support();
     for (size_t a = 0; a < support.size(); ++a) {
       const Index v = support[a];

@@ -188,6 +188,11 @@ class Simulation {
   void updateRigidity();
   void splitVelocity();
   void coupledStep();
+  // The elastic share sigma_i the stepper takes (section 4.3): empty (1 everywhere) without
+  // rigid motion.
+  [[nodiscard]] std::span<const double> stepperShare() const {
+    return rigidActive_ ? std::span<const double>(sigma_) : std::span<const double>();
+  }
   void runTrial(bool constrained, bool first);
   // Finishes the constrained trial that met the constraints (or the last one allowed): the
   // stepper's second part, where the elastic step ended.
