@@ -43,7 +43,8 @@ ConstraintReport solveOneCycle(const Model& model, const ConstraintSet& set, Sch
   StepResponse response;
   response.buildElastic(stepper, model, {}, solver.support());
   const State start = State::atRest(mesh);
-  solver.beginStep(mesh, set, start.position, model.properties.mass);
+  solver.beginStep(mesh, set, start.position, model.properties.mass, stepper.system().omega2(),
+                   stepper.period());
   State free = start;
   stepper.step(free, Points::Zero(mesh.numVertices(), 3));
   const Index s = static_cast<Index>(solver.support().size());
@@ -140,6 +141,25 @@ TEST(ConstraintSet, BadInputGetsAClearError) {
   const Mesh withIsolated(lonely, {{0, 1, 2}});
   EXPECT_TRUE(throwsWith([&] { set.addNormal(withIsolated, lonely, 3, Vec3::UnitZ()); },
                          "isolated vertex"));
+}
+
+TEST(ConstraintSet, PlaneFlatnessTellsARingWithAPlaneFromOneWithout) {
+  auto flatness = [](std::vector<Vec3> points) { return planeFlatness(points); };
+  // Principal variances 1/3, 4/3 and h^2/3 along x, y and z: l0 / l1 = min(1, h^2) / 1 for
+  // h <= 2.
+  auto box = [](double h) {
+    return std::vector<Vec3>{Vec3(1, 0, 0),  Vec3(-1, 0, 0), Vec3(0, 2, 0),
+                             Vec3(0, -2, 0), Vec3(0, 0, h),  Vec3(0, 0, -h)};
+  };
+  EXPECT_EQ(flatness(box(0.0)), 0.0);
+  EXPECT_NEAR(flatness(box(0.5)), 0.25, 1e-12);
+  EXPECT_NEAR(flatness(box(0.9)), 0.81, 1e-12);
+  // A regular tetrahedron's corners: no direction is flattest.
+  EXPECT_NEAR(flatness({Vec3(1, 1, 1), Vec3(1, -1, -1), Vec3(-1, 1, -1), Vec3(-1, -1, 1)}), 1.0,
+              1e-12);
+  // No plane at all.
+  EXPECT_EQ(flatness({Vec3(0, 0, 0), Vec3(1, 0, 0), Vec3(2, 0, 0)}), 1.0);
+  EXPECT_EQ(flatness({Vec3(0, 0, 0), Vec3(1, 0, 0)}), 1.0);
 }
 
 TEST(ConstraintSet, NormalAgainstAFullyPinnedRingIsContradictory) {

@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <iostream>
 #include <sstream>
 
 #include "zsculpt/core/errors.h"
@@ -44,6 +45,9 @@ bool GuardedRun::step(long k) {
     why_ = "the state became non-finite";
     return false;
   }
+  // What the cycle found (a constraint not met, a normal let go) is told as it happens.
+  for (const std::string& warning : sim_.takeWarnings())
+    std::cerr << "zsculpt: warning: " << edits_.source << ": " << warning << "\n";
   diagnostics_ = sim_.diagnostics();
   if (!std::isfinite(diagnostics_.total())) {
     why_ = "the energy became non-finite";

@@ -14,19 +14,37 @@ std::string describeConstraint(ConstraintKind kind, Index vertex) {
          " constraint at vertex " + std::to_string(vertex);
 }
 
-std::optional<Vec3> fitPlaneNormal(std::span<const Vec3> points) {
-  if (points.size() < 3) return std::nullopt;
+namespace {
+
+Eigen::SelfAdjointEigenSolver<Mat3> principalDirections(std::span<const Vec3> points) {
   Vec3 mean = Vec3::Zero();
   for (const Vec3& p : points) mean += p;
   mean /= static_cast<double>(points.size());
   Mat3 covariance = Mat3::Zero();
   for (const Vec3& p : points) covariance.noalias() += (p - mean) * (p - mean).transpose();
-  Eigen::SelfAdjointEigenSolver<Mat3> eig(covariance);
-  const Vec3 values = eig.eigenvalues();  // ascending
-  // Collinear (or coincident) points: the two smallest eigenvalues vanish together and the
-  // plane is not defined.
-  if (!(values[1] > 1e-12 * values[2]) || !(values[2] > 0.0)) return std::nullopt;
+  return Eigen::SelfAdjointEigenSolver<Mat3>(covariance);
+}
+
+// Collinear (or coincident) points: the two smallest eigenvalues vanish together and the
+// plane is not defined.
+bool definesPlane(const Vec3& values) {
+  return values[1] > 1e-12 * values[2] && values[2] > 0.0;
+}
+
+}  // namespace
+
+std::optional<Vec3> fitPlaneNormal(std::span<const Vec3> points) {
+  if (points.size() < 3) return std::nullopt;
+  const Eigen::SelfAdjointEigenSolver<Mat3> eig = principalDirections(points);
+  if (!definesPlane(eig.eigenvalues())) return std::nullopt;  // ascending eigenvalues
   return Vec3(eig.eigenvectors().col(0).normalized());
+}
+
+double planeFlatness(std::span<const Vec3> points) {
+  if (points.size() < 3) return 1.0;
+  const Vec3 values = principalDirections(points).eigenvalues();
+  if (!definesPlane(values)) return 1.0;
+  return std::max(values[0], 0.0) / values[1];
 }
 
 void normalFitVertices(const Mesh& mesh, Index vertex, std::vector<Index>& out) {

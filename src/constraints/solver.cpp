@@ -153,6 +153,7 @@ void StepResponse::predict(const Points& force, Points& position) const {
 void ConstraintSolver::setUp(const Mesh& mesh, const ConstraintSet& constraints) {
   localOf_.assign(static_cast<size_t>(mesh.numVertices()), -1);
   support_.clear();
+  releasedVertices_.clear();
   std::vector<Index> fit;
   for (const Constraint& c : constraints.constraints()) {
     if (c.kind == ConstraintKind::Position) {
@@ -216,8 +217,12 @@ void ConstraintSolver::gatherSupport(const Points& all, Points& out) const {
 }
 
 void ConstraintSolver::beginStep(const Mesh& mesh, const ConstraintSet& constraints,
-                                 const Points& position, const VectorX& mass) {
-  for (Plane& plane : planes_) {
+                                 const Points& position, const VectorX& mass,
+                                 const SparseRowMatrix& omega2, double period) {
+  gatherSupport(position, supportEnd_);
+  releasedVertices_.clear();
+  for (size_t q = 0; q < planes_.size(); ++q) {
+    Plane& plane = planes_[q];
     double total = 0.0;
     Vec3 centre = Vec3::Zero();
     for (size_t k = 0; k < plane.locals.size(); ++k) {
@@ -232,13 +237,6 @@ void ConstraintSolver::beginStep(const Mesh& mesh, const ConstraintSet& constrai
       plane.radius +=
           (position.row(v).transpose() - centre).norm() / static_cast<double>(plane.locals.size());
     }
-    // Two directions across the target normal: the components of the normal the forces
-    // act on.
-    const Vec3 target = constraints.get(plane.id).value;
-    Index axis = 0;
-    target.cwiseAbs().minCoeff(&axis);
-    plane.across.col(0) = target.cross(Vec3::Unit(axis)).normalized();
-    plane.across.col(1) = target.cross(Vec3(plane.across.col(0)));
     // Orientation of the fitted plane this step: the faces' where the vertex has faces,
     // else continuity with the last step (a curve), so the normal never flips.
     const Index vertex = constraints.get(plane.id).vertex;
@@ -249,12 +247,50 @@ void ConstraintSolver::beginStep(const Mesh& mesh, const ConstraintSet& constrai
         reference += Vec3(position.row(corners[k]).transpose())
                          .cross(Vec3(position.row(corners[(k + 1) % corners.size()]).transpose()));
     }
-    gatherSupport(position, supportEnd_);
     const Vec3 current = planeNormal(plane, supportEnd_);
     if (reference.squaredNorm() > 0.0)
       plane.hint = current.dot(reference) < 0.0 ? -current : current;
     else if (current.squaredNorm() > 0.0)
       plane.hint = current;
+    // A ring that does not define its normal is let go for the cycle: no forces, no warm
+    // start, and no pursuit of its residual (kFlatness).
+    points_.clear();
+    for (Index l : plane.locals) points_.push_back(supportEnd_.row(l).transpose());
+    plane.held = current.squaredNorm() > 0.0 && planeFlatness(points_) <= kFlatness;
+    if (!plane.held) {
+      for (auto& g : plane.gradient) g.setZero();
+      lambda_[q].setZero();
+      releasedVertices_.push_back(vertex);
+      continue;
+    }
+    // The cycle's goal: the target, or the normal turned towards it by as much as the ring
+    // may turn in a cycle (kTurnRate).
+    const Vec3 target = constraints.get(plane.id).value;
+    double stiffest = 0.0;
+    for (Index l : plane.locals)
+      stiffest = std::max(stiffest, omega2.coeff(support_[static_cast<size_t>(l)],
+                                                 support_[static_cast<size_t>(l)]));
+    const double maxTurn =
+        stiffest > 0.0 ? kTurnRate * period / std::sqrt(6.0 / stiffest) : std::numbers::pi;
+    const Vec3 from = plane.hint;
+    Vec3 turnAxis = from.cross(target);
+    const double off = std::atan2(turnAxis.norm(), from.dot(target));
+    plane.goal = target;
+    if (off > maxTurn) {
+      if (turnAxis.norm() > 0.0) {
+        turnAxis.normalize();
+      } else {  // opposite: any axis across the normal
+        Index k = 0;
+        from.cwiseAbs().minCoeff(&k);
+        turnAxis = from.cross(Vec3::Unit(k)).normalized();
+      }
+      plane.goal = Eigen::AngleAxisd(maxTurn, turnAxis) * from;
+    }
+    // Two directions across the goal: the components of the normal the forces act on.
+    Index axis = 0;
+    plane.goal.cwiseAbs().minCoeff(&axis);
+    plane.across.col(0) = plane.goal.cross(Vec3::Unit(axis)).normalized();
+    plane.across.col(1) = plane.goal.cross(Vec3(plane.across.col(0)));
     normalGradient(plane, supportEnd_, plane.gradient);
   }
   // Warm start: last cycle's unknowns, with this cycle's gradients.
@@ -288,9 +324,9 @@ void ConstraintSolver::normalGradient(const Plane& plane, Points& supportPositio
   }
 }
 
-double ConstraintSolver::planeResidual(const ConstraintSet& constraints, const Plane& plane,
-                                       const Points& supportPosition, Vec3& rotation) {
-  const Vec3 target = constraints.get(plane.id).value;
+double ConstraintSolver::planeResidual(const Plane& plane, const Points& supportPosition,
+                                       Vec3& rotation) const {
+  const Vec3& target = plane.goal;
   const Vec3 normal = planeNormal(plane, supportPosition);
   if (normal.squaredNorm() == 0.0) {
     // The plane collapsed to a line: no normal; report the largest error.
@@ -334,9 +370,14 @@ bool ConstraintSolver::check(const ConstraintSet& constraints, const Points& end
         std::max(report.positionError, (supportEnd_.row(pin.local).transpose() - target).norm());
   }
   Vec3 rotation;
+  report.released = static_cast<int>(releasedVertices_.size());
+  report.turning = 0;
   for (const Plane& plane : planes_)
-    report.normalError =
-        std::max(report.normalError, planeResidual(constraints, plane, supportEnd_, rotation));
+    if (plane.held) {
+      report.normalError =
+          std::max(report.normalError, planeResidual(plane, supportEnd_, rotation));
+      if (plane.goal != constraints.get(plane.id).value) ++report.turning;
+    }
   report.converged =
       report.positionError <= positionTolerance && report.normalError <= normalTolerance;
   return report.converged;
@@ -359,8 +400,12 @@ double ConstraintSolver::residual(const ConstraintSet& constraints, const StepRe
   }
   Vec3 rotation;
   for (const Plane& plane : planes_) {
-    normalError = std::max(normalError, planeResidual(constraints, plane, predicted_, rotation));
-    out.segment<3>(row) = plane.radius * rotation;
+    if (plane.held) {
+      normalError = std::max(normalError, planeResidual(plane, predicted_, rotation));
+      out.segment<3>(row) = plane.radius * rotation;
+    } else {
+      out.segment<3>(row).setZero();
+    }
     row += 3;
   }
   return out.squaredNorm();
@@ -518,6 +563,7 @@ void ConstraintSolver::velocityCorrection(double period, const Points& startPosi
   // reached 1e300 J within 500 cycles.)
   gatherSupport(endPosition, scratch_);
   for (const Plane& plane : planes_) {
+    if (!plane.held) continue;
     normalGradient(plane, scratch_, endGradient_);
     Eigen::Matrix2d a = Eigen::Matrix2d::Zero();
     Eigen::Vector2d b = Eigen::Vector2d::Zero();

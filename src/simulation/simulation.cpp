@@ -259,16 +259,18 @@ Index Simulation::addNormalConstraint(Index vertex, std::optional<Vec3> normal) 
       normal ? *normal : bestPlaneNormal(model_.mesh, state_.position, vertex).value_or(Vec3::UnitZ());
   const Index id = constraints_.addNormal(model_.mesh, state_.position, vertex, direction);
   // Without angle springs the ring folds freely, and where it folds through a shape with no
-  // flattest direction its plane, hence the normal, jumps: no cycle can hold that
-  // (docs/semi-rigid-and-constraints.md, "Normal constraints").
+  // flattest direction its plane, hence the normal, is undefined: the constraint lets go
+  // there and turns the normal back once the ring flattens, which does work
+  // (docs/semi-rigid-and-constraints.md, "A folding ring is let go").
   std::vector<Index> ring;
   normalFitVertices(model_.mesh, vertex, ring);
   const VectorX& angular = model_.properties.angularStiffness;
   if (std::any_of(ring.begin(), ring.end(), [&](Index v) { return !(angular[v] > 0.0); }))
     warnings_.push_back("normal constraint at vertex " + std::to_string(vertex) +
                         ": its ring has no angle springs, so it folds freely, and folded far "
-                        "enough it has no plane: the normal can then jump and the run "
-                        "diverge; paint angular stiffness there to hold it reliably");
+                        "enough it has no plane: the normal is then let go, and turning it "
+                        "back after each fold puts energy in; paint angular stiffness there "
+                        "to hold it reliably");
   return id;
 }
 
@@ -632,6 +634,7 @@ void Simulation::coupledStep() {
     velocityDelta_.setZero(s, 3);
     supportChi_.assign(static_cast<size_t>(s), 0.0);
     warnedUnmet_ = false;
+    warnedReleased_ = false;
   }
   if (constrained && !responseValid_) {
     response_.buildElastic(*stepper_, model_, stepperShare(), solver_.support());
@@ -661,7 +664,8 @@ void Simulation::coupledStep() {
   report_ = ConstraintReport{};
   if (constrained) {
     const auto support = solver_.support();
-    solver_.beginStep(model_.mesh, constraints_, state_.position, mass);
+    solver_.beginStep(model_.mesh, constraints_, state_.position, mass, stepper_->system().omega2(),
+                      t);
     for (size_t a = 0; a < support.size(); ++a) {
       supportStart_.row(static_cast<Index>(a)) = state_.position.row(support[a]);
       supportChi_[a] = chi_[static_cast<size_t>(support[a])];
@@ -694,6 +698,14 @@ void Simulation::coupledStep() {
       solver_.solve(constraints_, response_, positionTolerance, settings_.normalTolerance);
     }
     finishTrial();
+    if (!solver_.releasedVertices().empty() && !warnedReleased_) {
+      warnings_.push_back("normal constraint at vertex " +
+                          std::to_string(solver_.releasedVertices().front()) +
+                          " let go at t = " + std::to_string(state_.time) +
+                          " s: its ring folded and has no flattest direction, so no normal to "
+                          "hold; it holds again once the ring flattens");
+      warnedReleased_ = true;
+    }
     if (!report_.converged && !warnedUnmet_) {
       warnings_.push_back("constraints not met at t = " + std::to_string(state_.time) +
                           " s (position error " + std::to_string(report_.positionError) +

@@ -41,6 +41,12 @@ struct Constraint {
 /// points or (nearly) collinear ones.
 std::optional<Vec3> fitPlaneNormal(std::span<const Vec3> points);
 
+/// How well `points` define fitPlaneNormal's plane: l0 / l1, the smallest principal
+/// variance of the points over the middle one. 0 for points in a plane, 1 where no
+/// direction is flattest (the fitted normal is then undefined, and jumps under the
+/// slightest change); 1 also for fewer than three points or collinear ones.
+double planeFlatness(std::span<const Vec3> points);
+
 /// The best-plane normal at `vertex` (paper section 3): the plane through the vertex and
 /// its one-ring, as the subdivision module computes vertex normals, oriented along the
 /// Newell vector of the vertex's faces (a curve has none: the largest component is made

@@ -31,6 +31,7 @@
 #include <vector>
 
 #include "zsculpt/constraints/constraints.h"
+#include "zsculpt/physics/matrices.h"
 #include "zsculpt/physics/stepper.h"
 #include "zsculpt/rigid/rigid_body.h"
 
@@ -94,7 +95,9 @@ class StepResponse {
 struct ConstraintReport {
   int steps = 0;                // elastic steps computed for this cycle (1 = no correction)
   double positionError = 0.0;   // largest distance of a pinned vertex from its target
-  double normalError = 0.0;     // largest angle (rad) of a constrained normal from its target
+  double normalError = 0.0;     // largest angle (rad) of a held normal from its cycle's goal
+  int released = 0;             // normal constraints let go this cycle (ConstraintSolver::held)
+  int turning = 0;              // held normals whose cycle goal falls short of their target
   bool converged = true;        // both within tolerance
 };
 
@@ -107,10 +110,31 @@ class ConstraintSolver {
   /// Position in support() of a vertex, or -1.
   [[nodiscard]] Index local(Index vertex) const;
 
-  /// Starts a cycle at `position`: the normals' orientation and gradients. The forces start from
-  /// the previous cycle's (warm start).
+  /// Starts a cycle of `period` seconds at `position`: the normals' orientation, goals and
+  /// gradients. The forces start from the previous cycle's (warm start). A normal whose ring
+  /// has no distinct flattest direction at `position` is let go for the cycle
+  /// (releasedVertices(); see kFlatness). A normal further from its target than the cycle
+  /// may turn it (kTurnRate) aims only that far towards it: the cycle's goal.
   void beginStep(const Mesh& mesh, const ConstraintSet& constraints, const Points& position,
-                 const VectorX& mass);
+                 const VectorX& mass, const SparseRowMatrix& omega2, double period);
+  /// A ring's fitted normal is held only while the ring is flat enough to define it: its two
+  /// smallest principal variances l0 <= l1 with l0 <= kFlatness l1 (planeFlatness). Where
+  /// they meet (a ring folding through a shape with no flattest direction) the normal is
+  /// undefined, its gradient grows as 1 / (l1 - l0), and forces along that gradient tear
+  /// the ring apart (docs/semi-rigid-and-constraints.md, "A folding ring is let go"). A
+  /// braced ring stays far below it (a quad grid's: 0); an unbraced dodecahedron's, held
+  /// through 2000 cycles of random motion, reaches 0.77.
+  static constexpr double kFlatness = 0.8;
+  /// The fastest a normal constraint turns its ring towards its target: this many radians
+  /// per T_ring = sqrt(6 / max_k Omega^2_kk) over the ring's vertices k (equation 5's
+  /// critical period, for the ring alone). A target further off (set so, or left behind
+  /// while the ring was let go) is reached over several cycles instead of in one, which in
+  /// the split cycles of fast motion took forces of 1e5 N and more on a ring of 0.01 kg
+  /// vertices. Each turn towards the target does work against the ring's springs: the
+  /// slower, the less (docs/semi-rigid-and-constraints.md measures it).
+  static constexpr double kTurnRate = 0.1;
+  /// The vertices of the normal constraints let go this cycle.
+  [[nodiscard]] std::span<const Index> releasedVertices() const { return releasedVertices_; }
   /// The virtual forces on the support (|S| x 3) for the current unknowns.
   [[nodiscard]] const Points& forces() const { return forces_; }
   /// Checks the end-of-step positions (N x 3); fills the report's errors and returns true
@@ -148,6 +172,8 @@ class ConstraintSolver {
     std::vector<Eigen::Matrix<double, 3, 2>> gradient;
     Eigen::Matrix<double, 3, 2> across = Eigen::Matrix<double, 3, 2>::Zero();  // _|_ target
     Vec3 hint = Vec3::UnitZ();    // the oriented normal at the start of the step
+    bool held = true;             // the ring defines its normal at the start of the step
+    Vec3 goal = Vec3::UnitZ();    // the normal at the end of the step: the target, or short of it
   };
   void assembleForces();
   Vec3 planeNormal(const Plane& plane, const Points& supportPosition) const;
@@ -155,8 +181,9 @@ class ConstraintSolver {
   // moves and restores), by central differences.
   void normalGradient(const Plane& plane, Points& supportPosition,
                       std::vector<Eigen::Matrix<double, 3, 2>>& out) const;
-  double planeResidual(const ConstraintSet& constraints, const Plane& plane,
-                       const Points& supportPosition, Vec3& rotation);
+  // The angle of the plane's normal at `supportPosition` from its goal, and the rotation
+  // that takes it there.
+  double planeResidual(const Plane& plane, const Points& supportPosition, Vec3& rotation) const;
   void gatherSupport(const Points& all, Points& out) const;
 
   std::vector<Index> support_;
@@ -165,6 +192,7 @@ class ConstraintSolver {
   std::vector<Plane> planes_;
   std::vector<Vec3> pinForce_;
   std::vector<Eigen::Vector2d> lambda_;  // per plane, the weights of its gradient forces
+  std::vector<Index> releasedVertices_;
   Points forces_, coupleForces_, predicted_, supportEnd_;
   mutable std::vector<Vec3> points_;
   mutable Points scratch_;  // |S| x 3, for the end-of-step gradients

@@ -256,6 +256,7 @@ class Simulation {
   std::vector<double> supportChi_;
   ConstraintReport report_;
   bool warnedUnmet_ = false;
+  bool warnedReleased_ = false;
   std::vector<std::string> warnings_;
 
   ImpulseLedger ledger_;
