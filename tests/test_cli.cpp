@@ -195,6 +195,21 @@ TEST_F(Cli, FastMotionSplitsStepsAndSubstepStrainZeroKeepsOneStepAndRunsAway) {
   expectOneLineError(run("simulate builtin:grid --substep-strain -0.5"), 2, "--substep-strain");
 }
 
+TEST_F(Cli, WhatACycleFindsIsToldAsTheRunGoes) {
+  // A sheet pinned at its corners, its centre's normal asked to face down: the constraint
+  // turns it, cannot get there, and stops at cycle 63 (t = 8.16 s) of 300. The warning comes
+  // on standard error during the run, once, and the run goes on (exit 0).
+  const Result r =
+      run("simulate builtin:grid:7 --angular-stiffness 0.5 --pin 0 --pin 6 --pin 42 "
+          "--pin 48 --pin-normal 24:0,0,-1 --steps 300 --json");
+  EXPECT_EQ(r.status, 0) << r.err;
+  const std::string warning =
+      "zsculpt: warning: builtin:grid:7: normal constraint at vertex 24 stopped at t = 8.1";
+  EXPECT_NE(r.err.find(warning), std::string::npos) << r.err;
+  EXPECT_EQ(r.err.find(warning), r.err.rfind(warning)) << r.err;
+  EXPECT_NE(r.out.find("\"diverged\": false"), std::string::npos) << r.out;
+}
+
 TEST_F(Cli, AStepAboveTheStableLimitIsRefusedWithTheLimit) {
   const Result r = run("simulate builtin:dodecahedron --dt-ratio 1.2");
   expectOneLineError(r, 2, "stable limit");

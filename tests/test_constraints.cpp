@@ -141,6 +141,12 @@ TEST(ConstraintSet, BadInputGetsAClearError) {
   const Mesh withIsolated(lonely, {{0, 1, 2}});
   EXPECT_TRUE(throwsWith([&] { set.addNormal(withIsolated, lonely, 3, Vec3::UnitZ()); },
                          "isolated vertex"));
+  // An interior vertex of a cubic lattice: its six neighbours lie along three axes alike, so
+  // no plane is flatter than another (planeFlatness 1).
+  const Mesh lattice = makeLattice(4);
+  EXPECT_TRUE(throwsWith([&] { set.addNormal(lattice, lattice.positions(), 21, Vec3::UnitZ()); },
+                         "normal constraint at vertex 21: the vertex and its neighbours have no "
+                         "flattest direction (flatness 1 > 0.8)"));
 }
 
 TEST(ConstraintSet, PlaneFlatnessTellsARingWithAPlaneFromOneWithout) {

@@ -36,18 +36,23 @@ bool RunawayGuard::afterStep(const Simulation& sim, long k, const Diagnostics& d
   return true;
 }
 
+void GuardedRun::tellWarnings() {
+  // What a cycle found (a constraint not met, a normal let go) is told as it happens.
+  for (const std::string& warning : sim_.takeWarnings())
+    std::cerr << "zsculpt: warning: " << edits_.source << ": " << warning << "\n";
+}
+
 bool GuardedRun::step(long k) {
   try {
     edits_.beforeStep(sim_);
     guard_.addEnergy(edits_.takeEnergyChange());
     sim_.step();  // rolls back and throws on a non-finite state
   } catch (const DivergenceError&) {
+    tellWarnings();
     why_ = "the state became non-finite";
     return false;
   }
-  // What the cycle found (a constraint not met, a normal let go) is told as it happens.
-  for (const std::string& warning : sim_.takeWarnings())
-    std::cerr << "zsculpt: warning: " << edits_.source << ": " << warning << "\n";
+  tellWarnings();
   diagnostics_ = sim_.diagnostics();
   if (!std::isfinite(diagnostics_.total())) {
     why_ = "the energy became non-finite";

@@ -58,6 +58,7 @@ class GuardedRun {
   [[nodiscard]] const State& lastGood() const { return runaway_ ? guard_.checkpoint() : sim_.state(); }
 
  private:
+  void tellWarnings();
   Simulation& sim_;
   TimedEdits& edits_;
   RunawayGuard guard_;

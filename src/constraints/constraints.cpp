@@ -175,6 +175,16 @@ Index ConstraintSet::addNormal(const Mesh& mesh, const Points& position, Index v
     throw InvalidInputError(what + ": a vertex with a single neighbour (a curve end) has no normal");
   if (!bestPlaneNormal(mesh, position, vertex))
     throw InvalidInputError(what + ": no plane fits the vertex and its neighbours (collinear)");
+  std::vector<Index> ring;
+  normalFitVertices(mesh, vertex, ring);
+  std::vector<Vec3> points;
+  for (Index v : ring) points.push_back(position.row(v).transpose());
+  if (const double flatness = planeFlatness(points); flatness > kMaxPlaneFlatness) {
+    std::ostringstream message;
+    message << what << ": the vertex and its neighbours have no flattest direction (flatness "
+            << flatness << " > " << kMaxPlaneFlatness << "), so no normal to hold";
+    throw InvalidInputError(message.str());
+  }
   const Vec3 unit = normal.normalized();
   if (const auto existing = find(ConstraintKind::Normal, vertex)) {
     if (get(*existing).value.dot(unit) < std::cos(1e-9))

@@ -153,7 +153,6 @@ void StepResponse::predict(const Points& force, Points& position) const {
 void ConstraintSolver::setUp(const Mesh& mesh, const ConstraintSet& constraints) {
   localOf_.assign(static_cast<size_t>(mesh.numVertices()), -1);
   support_.clear();
-  releasedVertices_.clear();
   std::vector<Index> fit;
   for (const Constraint& c : constraints.constraints()) {
     if (c.kind == ConstraintKind::Position) {
@@ -184,6 +183,10 @@ void ConstraintSolver::setUp(const Mesh& mesh, const ConstraintSet& constraints)
       planes_.push_back(std::move(plane));
     }
   }
+  releasedVertices_.clear();
+  stoppedVertices_.clear();
+  releasedVertices_.reserve(planes_.size());
+  stoppedVertices_.reserve(planes_.size());
   pinForce_.assign(pins_.size(), Vec3::Zero());
   lambda_.assign(planes_.size(), Eigen::Vector2d::Zero());
   const Index s = static_cast<Index>(support_.size());
@@ -221,6 +224,7 @@ void ConstraintSolver::beginStep(const Mesh& mesh, const ConstraintSet& constrai
                                  const SparseRowMatrix& omega2, double period) {
   gatherSupport(position, supportEnd_);
   releasedVertices_.clear();
+  stoppedVertices_.clear();
   for (size_t q = 0; q < planes_.size(); ++q) {
     Plane& plane = planes_[q];
     double total = 0.0;
@@ -253,10 +257,10 @@ void ConstraintSolver::beginStep(const Mesh& mesh, const ConstraintSet& constrai
     else if (current.squaredNorm() > 0.0)
       plane.hint = current;
     // A ring that does not define its normal is let go for the cycle: no forces, no warm
-    // start, and no pursuit of its residual (kFlatness).
+    // start, and no pursuit of its residual (kMaxPlaneFlatness).
     points_.clear();
     for (Index l : plane.locals) points_.push_back(supportEnd_.row(l).transpose());
-    plane.held = current.squaredNorm() > 0.0 && planeFlatness(points_) <= kFlatness;
+    plane.held = current.squaredNorm() > 0.0 && planeFlatness(points_) <= kMaxPlaneFlatness;
     if (!plane.held) {
       for (auto& g : plane.gradient) g.setZero();
       lambda_[q].setZero();
@@ -264,18 +268,34 @@ void ConstraintSolver::beginStep(const Mesh& mesh, const ConstraintSet& constrai
       continue;
     }
     // The cycle's goal: the target, or the normal turned towards it by as much as the ring
-    // may turn in a cycle (kTurnRate).
+    // may turn in a cycle (kTurnRate), at most kTurnRate a cycle (a ring without springs
+    // has no period of its own).
     const Vec3 target = constraints.get(plane.id).value;
+    if (target != plane.target) {  // a new target: a new budget
+      plane.target = target;
+      plane.turned = 0.0;
+      plane.stopped = false;
+    }
     double stiffest = 0.0;
     for (Index l : plane.locals)
       stiffest = std::max(stiffest, omega2.coeff(support_[static_cast<size_t>(l)],
                                                  support_[static_cast<size_t>(l)]));
-    const double maxTurn =
-        stiffest > 0.0 ? kTurnRate * period / std::sqrt(6.0 / stiffest) : std::numbers::pi;
+    const double ringPeriod = stiffest > 0.0 ? std::sqrt(6.0 / stiffest) : period;
+    const double maxTurn = kTurnRate * std::min(1.0, period / ringPeriod);
     const Vec3 from = plane.hint;
-    Vec3 turnAxis = from.cross(target);
-    const double off = std::atan2(turnAxis.norm(), from.dot(target));
-    plane.goal = target;
+    auto angleTo = [&](const Vec3& to) { return std::atan2(from.cross(to).norm(), from.dot(to)); };
+    if (!plane.stopped && angleTo(target) > maxTurn && plane.turned + maxTurn > kTurnBudget) {
+      plane.stopped = true;  // the budget is spent: hold the normal where it is
+      plane.kept = from;
+    }
+    // A stopped plane holds what it kept, or where it is if that is a turn away (it was let
+    // go since, and moved).
+    if (plane.stopped && angleTo(plane.kept) > maxTurn) plane.kept = from;
+    const Vec3 aim = plane.stopped ? plane.kept : target;
+    if (plane.stopped) stoppedVertices_.push_back(vertex);
+    Vec3 turnAxis = from.cross(aim);
+    const double off = std::atan2(turnAxis.norm(), from.dot(aim));
+    plane.goal = aim;
     if (off > maxTurn) {
       if (turnAxis.norm() > 0.0) {
         turnAxis.normalize();
@@ -285,6 +305,7 @@ void ConstraintSolver::beginStep(const Mesh& mesh, const ConstraintSet& constrai
         turnAxis = from.cross(Vec3::Unit(k)).normalized();
       }
       plane.goal = Eigen::AngleAxisd(maxTurn, turnAxis) * from;
+      plane.turned += maxTurn;
     }
     // Two directions across the goal: the components of the normal the forces act on.
     Index axis = 0;
@@ -371,12 +392,18 @@ bool ConstraintSolver::check(const ConstraintSet& constraints, const Points& end
   }
   Vec3 rotation;
   report.released = static_cast<int>(releasedVertices_.size());
+  report.stopped = static_cast<int>(stoppedVertices_.size());
   report.turning = 0;
+  report.targetError = 0.0;
   for (const Plane& plane : planes_)
     if (plane.held) {
       report.normalError =
           std::max(report.normalError, planeResidual(plane, supportEnd_, rotation));
-      if (plane.goal != constraints.get(plane.id).value) ++report.turning;
+      const Vec3 normal = planeNormal(plane, supportEnd_);
+      const Vec3 target = constraints.get(plane.id).value;
+      report.targetError =
+          std::max(report.targetError, std::atan2(normal.cross(target).norm(), normal.dot(target)));
+      if (!plane.stopped && plane.goal != target) ++report.turning;
     }
   report.converged =
       report.positionError <= positionTolerance && report.normalError <= normalTolerance;
@@ -385,8 +412,9 @@ bool ConstraintSolver::check(const ConstraintSet& constraints, const Points& end
 
 double ConstraintSolver::residual(const ConstraintSet& constraints, const StepResponse& response,
                                   VectorX& out, double& positionError, double& normalError) {
-  // Pins: target - predicted position (m). Planes: the turn taking the predicted normal to
-  // the target, times the plane's radius (m), so that both weigh alike in least squares.
+  // Pins: target - predicted position (m). Planes held this cycle: the turn taking the
+  // predicted normal to the cycle's goal, times the plane's radius (m), so that both weigh
+  // alike in least squares; planes let go: nothing.
   assembleForces();
   response.predict(forces_, predicted_);
   positionError = 0.0;
@@ -414,8 +442,9 @@ double ConstraintSolver::residual(const ConstraintSet& constraints, const StepRe
 bool ConstraintSolver::planesWithinReach(const StepResponse& response) {
   response.elasticDisplacement(coupleForces_, planeMotion_);
   for (const Plane& plane : planes_)
-    for (Index l : plane.locals)
-      if (!(planeMotion_.row(l).norm() <= 2.0 * plane.radius)) return false;
+    if (plane.held)
+      for (Index l : plane.locals)
+        if (!(planeMotion_.row(l).norm() <= 2.0 * plane.radius)) return false;
   return true;
 }
 

@@ -260,7 +260,7 @@ Index Simulation::addNormalConstraint(Index vertex, std::optional<Vec3> normal) 
   const Index id = constraints_.addNormal(model_.mesh, state_.position, vertex, direction);
   // Without angle springs the ring folds freely, and where it folds through a shape with no
   // flattest direction its plane, hence the normal, is undefined: the constraint lets go
-  // there and turns the normal back once the ring flattens, which does work
+  // there and turns the normal back once the ring flattens, up to its turn budget
   // (docs/semi-rigid-and-constraints.md, "A folding ring is let go").
   std::vector<Index> ring;
   normalFitVertices(model_.mesh, vertex, ring);
@@ -268,9 +268,9 @@ Index Simulation::addNormalConstraint(Index vertex, std::optional<Vec3> normal) 
   if (std::any_of(ring.begin(), ring.end(), [&](Index v) { return !(angular[v] > 0.0); }))
     warnings_.push_back("normal constraint at vertex " + std::to_string(vertex) +
                         ": its ring has no angle springs, so it folds freely, and folded far "
-                        "enough it has no plane: the normal is then let go, and turning it "
-                        "back after each fold puts energy in; paint angular stiffness there "
-                        "to hold it reliably");
+                        "enough it has no plane: the normal is then let go, and after pi rad "
+                        "of turning back it stops and is held where it is; paint angular "
+                        "stiffness there to hold it reliably");
   return id;
 }
 
@@ -635,6 +635,7 @@ void Simulation::coupledStep() {
     supportChi_.assign(static_cast<size_t>(s), 0.0);
     warnedUnmet_ = false;
     warnedReleased_ = false;
+    warnedStopped_ = false;
   }
   if (constrained && !responseValid_) {
     response_.buildElastic(*stepper_, model_, stepperShare(), solver_.support());
@@ -706,10 +707,19 @@ void Simulation::coupledStep() {
                           "hold; it holds again once the ring flattens");
       warnedReleased_ = true;
     }
+    if (!solver_.stoppedVertices().empty() && !warnedStopped_) {
+      warnings_.push_back("normal constraint at vertex " +
+                          std::to_string(solver_.stoppedVertices().front()) +
+                          " stopped at t = " + std::to_string(state_.time) + " s, " +
+                          std::to_string(report_.targetError) +
+                          " rad from its target: its ring turned back as it was turned (pi "
+                          "rad in all); held where it is until its target is set again");
+      warnedStopped_ = true;
+    }
     if (!report_.converged && !warnedUnmet_) {
       warnings_.push_back("constraints not met at t = " + std::to_string(state_.time) +
                           " s (position error " + std::to_string(report_.positionError) +
-                          ", normal error " + std::to_string(report_.normalError) +
+                          " m, normal error " + std::to_string(report_.normalError) +
                           " rad): they contradict each other or the rigid body");
       warnedUnmet_ = true;
     }

@@ -47,6 +47,15 @@ std::optional<Vec3> fitPlaneNormal(std::span<const Vec3> points);
 /// slightest change); 1 also for fewer than three points or collinear ones.
 double planeFlatness(std::span<const Vec3> points);
 
+/// The most planeFlatness a ring may have for its normal to be held: a normal constraint is
+/// refused on a ring beyond it, and let go for a cycle that starts with its ring beyond it
+/// (ConstraintSolver). Where l0 and l1 meet the fitted normal is undefined, its gradient
+/// grows as 1 / (l1 - l0), and forces along that gradient tear the ring apart
+/// (docs/semi-rigid-and-constraints.md, "A folding ring is let go"). A braced ring stays far
+/// below it (a flat grid's: 0); an unbraced dodecahedron's, held through 2000 cycles of
+/// random motion, reaches 0.77.
+inline constexpr double kMaxPlaneFlatness = 0.8;
+
 /// The best-plane normal at `vertex` (paper section 3): the plane through the vertex and
 /// its one-ring, as the subdivision module computes vertex normals, oriented along the
 /// Newell vector of the vertex's faces (a curve has none: the largest component is made

@@ -27,6 +27,7 @@
 // does not move.
 
 #include <Eigen/Dense>
+#include <numbers>
 #include <span>
 #include <vector>
 
@@ -91,13 +92,15 @@ class StepResponse {
   mutable Points elasticWork_;
 };
 
-/// How well the constraints held in the last step.
+/// How well the constraints held in the last step (of a split cycle: its last step).
 struct ConstraintReport {
   int steps = 0;                // elastic steps computed for this cycle (1 = no correction)
   double positionError = 0.0;   // largest distance of a pinned vertex from its target
   double normalError = 0.0;     // largest angle (rad) of a held normal from its cycle's goal
   int released = 0;             // normal constraints let go this cycle (ConstraintSolver::held)
   int turning = 0;              // held normals whose cycle goal falls short of their target
+  int stopped = 0;              // held normals that stopped short of their target (kTurnBudget)
+  double targetError = 0.0;     // largest angle (rad) of a held normal from its target
   bool converged = true;        // both within tolerance
 };
 
@@ -113,18 +116,12 @@ class ConstraintSolver {
   /// Starts a cycle of `period` seconds at `position`: the normals' orientation, goals and
   /// gradients. The forces start from the previous cycle's (warm start). A normal whose ring
   /// has no distinct flattest direction at `position` is let go for the cycle
-  /// (releasedVertices(); see kFlatness). A normal further from its target than the cycle
-  /// may turn it (kTurnRate) aims only that far towards it: the cycle's goal.
+  /// (releasedVertices(); kMaxPlaneFlatness). A normal further from its target than the
+  /// cycle may turn it (kTurnRate) aims only that far towards it: the cycle's goal. One that
+  /// has turned kTurnBudget towards a target without reaching it stops and is held where it
+  /// is (stoppedVertices()) until its target is set again.
   void beginStep(const Mesh& mesh, const ConstraintSet& constraints, const Points& position,
                  const VectorX& mass, const SparseRowMatrix& omega2, double period);
-  /// A ring's fitted normal is held only while the ring is flat enough to define it: its two
-  /// smallest principal variances l0 <= l1 with l0 <= kFlatness l1 (planeFlatness). Where
-  /// they meet (a ring folding through a shape with no flattest direction) the normal is
-  /// undefined, its gradient grows as 1 / (l1 - l0), and forces along that gradient tear
-  /// the ring apart (docs/semi-rigid-and-constraints.md, "A folding ring is let go"). A
-  /// braced ring stays far below it (a quad grid's: 0); an unbraced dodecahedron's, held
-  /// through 2000 cycles of random motion, reaches 0.77.
-  static constexpr double kFlatness = 0.8;
   /// The fastest a normal constraint turns its ring towards its target: this many radians
   /// per T_ring = sqrt(6 / max_k Omega^2_kk) over the ring's vertices k (equation 5's
   /// critical period, for the ring alone). A target further off (set so, or left behind
@@ -133,8 +130,17 @@ class ConstraintSolver {
   /// vertices. Each turn towards the target does work against the ring's springs: the
   /// slower, the less (docs/semi-rigid-and-constraints.md measures it).
   static constexpr double kTurnRate = 0.1;
+  /// The most a normal constraint turns towards one target, in all (radians): pi, the most
+  /// any target needs from any normal. A ring that turns back as it is turned (a fold, a
+  /// pinned sheet asked to face the other way) would otherwise be turned for ever, and every
+  /// turn does work: a 7 x 7 grid pinned at its corners, asked to turn its centre's normal
+  /// over, gained 100 J in 300 cycles.
+  static constexpr double kTurnBudget = std::numbers::pi;
   /// The vertices of the normal constraints let go this cycle.
   [[nodiscard]] std::span<const Index> releasedVertices() const { return releasedVertices_; }
+  /// The vertices of the normal constraints that spent kTurnBudget on their target and are
+  /// held where they are.
+  [[nodiscard]] std::span<const Index> stoppedVertices() const { return stoppedVertices_; }
   /// The virtual forces on the support (|S| x 3) for the current unknowns.
   [[nodiscard]] const Points& forces() const { return forces_; }
   /// Checks the end-of-step positions (N x 3); fills the report's errors and returns true
@@ -174,6 +180,10 @@ class ConstraintSolver {
     Vec3 hint = Vec3::UnitZ();    // the oriented normal at the start of the step
     bool held = true;             // the ring defines its normal at the start of the step
     Vec3 goal = Vec3::UnitZ();    // the normal at the end of the step: the target, or short of it
+    Vec3 target = Vec3::Zero();   // the target the turning below was towards
+    double turned = 0.0;          // radians turned towards it so far (kTurnBudget)
+    bool stopped = false;         // the budget is spent: hold `kept`
+    Vec3 kept = Vec3::UnitZ();
   };
   void assembleForces();
   Vec3 planeNormal(const Plane& plane, const Points& supportPosition) const;
@@ -192,7 +202,7 @@ class ConstraintSolver {
   std::vector<Plane> planes_;
   std::vector<Vec3> pinForce_;
   std::vector<Eigen::Vector2d> lambda_;  // per plane, the weights of its gradient forces
-  std::vector<Index> releasedVertices_;
+  std::vector<Index> releasedVertices_, stoppedVertices_;
   Points forces_, coupleForces_, predicted_, supportEnd_;
   mutable std::vector<Vec3> points_;
   mutable Points scratch_;  // |S| x 3, for the end-of-step gradients

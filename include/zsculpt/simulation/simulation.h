@@ -257,6 +257,7 @@ class Simulation {
   ConstraintReport report_;
   bool warnedUnmet_ = false;
   bool warnedReleased_ = false;
+  bool warnedStopped_ = false;
   std::vector<std::string> warnings_;
 
   ImpulseLedger ledger_;
