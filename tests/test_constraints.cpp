@@ -146,7 +146,7 @@ TEST(ConstraintSet, BadInputGetsAClearError) {
   const Mesh lattice = makeLattice(4);
   EXPECT_TRUE(throwsWith([&] { set.addNormal(lattice, lattice.positions(), 21, Vec3::UnitZ()); },
                          "normal constraint at vertex 21: the vertex and its neighbours have no "
-                         "flattest direction (flatness 1 > 0.8)"));
+                         "flattest direction in the mesh (flatness 1 > 0.8)"));
 }
 
 TEST(ConstraintSet, PlaneFlatnessTellsARingWithAPlaneFromOneWithout) {

@@ -175,14 +175,17 @@ Index ConstraintSet::addNormal(const Mesh& mesh, const Points& position, Index v
     throw InvalidInputError(what + ": a vertex with a single neighbour (a curve end) has no normal");
   if (!bestPlaneNormal(mesh, position, vertex))
     throw InvalidInputError(what + ": no plane fits the vertex and its neighbours (collinear)");
+  // Judged on the mesh as loaded, not on the current shape: a ring folded for the moment is
+  // let go while it is (ConstraintSolver), and a constraint carried over (a change of scheme)
+  // must not be refused for where its ring happens to be.
   std::vector<Index> ring;
   normalFitVertices(mesh, vertex, ring);
   std::vector<Vec3> points;
-  for (Index v : ring) points.push_back(position.row(v).transpose());
+  for (Index v : ring) points.push_back(mesh.positions().row(v).transpose());
   if (const double flatness = planeFlatness(points); flatness > kMaxPlaneFlatness) {
     std::ostringstream message;
-    message << what << ": the vertex and its neighbours have no flattest direction (flatness "
-            << flatness << " > " << kMaxPlaneFlatness << "), so no normal to hold";
+    message << what << ": the vertex and its neighbours have no flattest direction in the mesh "
+            << "(flatness " << flatness << " > " << kMaxPlaneFlatness << "), so no normal to hold";
     throw InvalidInputError(message.str());
   }
   const Vec3 unit = normal.normalized();
