@@ -167,7 +167,11 @@ void ConstraintSolver::setUp(const Mesh& mesh, const ConstraintSet& constraints)
   for (size_t a = 0; a < support_.size(); ++a)
     localOf_[static_cast<size_t>(support_[a])] = static_cast<Index>(a);
   pins_.clear();
-  planes_.clear();
+  // A plane's turning record (its target, what it lost, whether it stopped) belongs to its
+  // constraint, not to this set-up: it carries over when other constraints come and go (a
+  // drag in the window adds and removes a pin at each stroke).
+  std::vector<Plane> previous;
+  previous.swap(planes_);
   size_t largestPlane = 0;
   for (const Constraint& c : constraints.constraints()) {
     if (c.kind == ConstraintKind::Position) {
@@ -179,14 +183,25 @@ void ConstraintSolver::setUp(const Mesh& mesh, const ConstraintSet& constraints)
       for (Index v : fit) plane.locals.push_back(local(v));
       plane.gradient.assign(fit.size(), Eigen::Matrix<double, 3, 2>::Zero());
       plane.hint = c.value;
+      for (const Plane& before : previous)
+        if (before.id == c.id) {
+          plane.hint = before.hint;
+          plane.target = before.target;
+          plane.lastOff = before.lastOff;
+          plane.lost = before.lost;
+          plane.stopped = before.stopped;
+          plane.kept = before.kept;
+        }
       largestPlane = std::max(largestPlane, fit.size());
       planes_.push_back(std::move(plane));
     }
   }
   releasedVertices_.clear();
   stoppedVertices_.clear();
+  newlyStopped_.clear();
   releasedVertices_.reserve(planes_.size());
   stoppedVertices_.reserve(planes_.size());
+  newlyStopped_.reserve(planes_.size());
   pinForce_.assign(pins_.size(), Vec3::Zero());
   lambda_.assign(planes_.size(), Eigen::Vector2d::Zero());
   const Index s = static_cast<Index>(support_.size());
@@ -225,6 +240,7 @@ void ConstraintSolver::beginStep(const Mesh& mesh, const ConstraintSet& constrai
   gatherSupport(position, supportEnd_);
   releasedVertices_.clear();
   stoppedVertices_.clear();
+  newlyStopped_.clear();
   for (size_t q = 0; q < planes_.size(); ++q) {
     Plane& plane = planes_[q];
     double total = 0.0;
@@ -262,6 +278,7 @@ void ConstraintSolver::beginStep(const Mesh& mesh, const ConstraintSet& constrai
     for (Index l : plane.locals) points_.push_back(supportEnd_.row(l).transpose());
     plane.held = current.squaredNorm() > 0.0 && planeFlatness(points_) <= kMaxPlaneFlatness;
     if (!plane.held) {
+      plane.lastOff = -1.0;  // the way back from a fold is not lost (kTurnBudget)
       for (auto& g : plane.gradient) g.setZero();
       lambda_[q].setZero();
       releasedVertices_.push_back(vertex);
@@ -273,7 +290,8 @@ void ConstraintSolver::beginStep(const Mesh& mesh, const ConstraintSet& constrai
     const Vec3 target = constraints.get(plane.id).value;
     if (target != plane.target) {  // a new target: a new budget
       plane.target = target;
-      plane.turned = 0.0;
+      plane.lastOff = -1.0;
+      plane.lost = 0.0;
       plane.stopped = false;
     }
     double stiffest = 0.0;
@@ -284,9 +302,18 @@ void ConstraintSolver::beginStep(const Mesh& mesh, const ConstraintSet& constrai
     const double maxTurn = kTurnRate * std::min(1.0, period / ringPeriod);
     const Vec3 from = plane.hint;
     auto angleTo = [&](const Vec3& to) { return std::atan2(from.cross(to).norm(), from.dot(to)); };
-    if (!plane.stopped && angleTo(target) > maxTurn && plane.turned + maxTurn > kTurnBudget) {
-      plane.stopped = true;  // the budget is spent: hold the normal where it is
-      plane.kept = from;
+    // What the ring lost of its way to the target since the last cycle, if it was held then
+    // too (a turn undone by the shape around it), counted until it arrives (kTurnBudget).
+    const double fromTarget = angleTo(target);
+    if (!plane.stopped) {
+      if (plane.lastOff >= 0.0) plane.lost += std::max(0.0, fromTarget - plane.lastOff);
+      plane.lastOff = fromTarget;
+      if (fromTarget <= maxTurn) plane.lost = 0.0;  // arrived
+      if (plane.lost > kTurnBudget) {
+        plane.stopped = true;  // the budget is spent: hold the normal where it is
+        plane.kept = from;
+        newlyStopped_.push_back({vertex, fromTarget});
+      }
     }
     // A stopped plane holds what it kept, or where it is if that is a turn away (it was let
     // go since, and moved).
@@ -305,7 +332,6 @@ void ConstraintSolver::beginStep(const Mesh& mesh, const ConstraintSet& constrai
         turnAxis = from.cross(Vec3::Unit(k)).normalized();
       }
       plane.goal = Eigen::AngleAxisd(maxTurn, turnAxis) * from;
-      plane.turned += maxTurn;
     }
     // Two directions across the goal: the components of the normal the forces act on.
     Index axis = 0;

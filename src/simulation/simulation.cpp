@@ -268,9 +268,9 @@ Index Simulation::addNormalConstraint(Index vertex, std::optional<Vec3> normal) 
   if (std::any_of(ring.begin(), ring.end(), [&](Index v) { return !(angular[v] > 0.0); }))
     warnings_.push_back("normal constraint at vertex " + std::to_string(vertex) +
                         ": its ring has no angle springs, so it folds freely, and folded far "
-                        "enough it has no plane: the normal is then let go, and after pi rad "
-                        "of turning back it stops and is held where it is; paint angular "
-                        "stiffness there to hold it reliably");
+                        "enough it has no plane: the normal is then let go, and once its ring "
+                        "has lost pi rad of its way back it is held where it is; paint "
+                        "angular stiffness there to hold it reliably");
   return id;
 }
 
@@ -635,7 +635,6 @@ void Simulation::coupledStep() {
     supportChi_.assign(static_cast<size_t>(s), 0.0);
     warnedUnmet_ = false;
     warnedReleased_ = false;
-    warnedStopped_ = false;
   }
   if (constrained && !responseValid_) {
     response_.buildElastic(*stepper_, model_, stepperShare(), solver_.support());
@@ -707,15 +706,12 @@ void Simulation::coupledStep() {
                           "hold; it holds again once the ring flattens");
       warnedReleased_ = true;
     }
-    if (!solver_.stoppedVertices().empty() && !warnedStopped_) {
-      warnings_.push_back("normal constraint at vertex " +
-                          std::to_string(solver_.stoppedVertices().front()) +
+    for (const ConstraintSolver::Stop& stop : solver_.newlyStopped())
+      warnings_.push_back("normal constraint at vertex " + std::to_string(stop.vertex) +
                           " stopped at t = " + std::to_string(state_.time) + " s, " +
-                          std::to_string(report_.targetError) +
-                          " rad from its target: its ring turned back as it was turned (pi "
-                          "rad in all); held where it is until its target is set again");
-      warnedStopped_ = true;
-    }
+                          std::to_string(stop.angle) +
+                          " rad from its target: its ring lost pi rad of its way there as it "
+                          "was turned; held where it is until its target is set again");
     if (!report_.converged && !warnedUnmet_) {
       warnings_.push_back("constraints not met at t = " + std::to_string(state_.time) +
                           " s (position error " + std::to_string(report_.positionError) +

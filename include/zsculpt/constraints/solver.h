@@ -117,9 +117,9 @@ class ConstraintSolver {
   /// gradients. The forces start from the previous cycle's (warm start). A normal whose ring
   /// has no distinct flattest direction at `position` is let go for the cycle
   /// (releasedVertices(); kMaxPlaneFlatness). A normal further from its target than the
-  /// cycle may turn it (kTurnRate) aims only that far towards it: the cycle's goal. One that
-  /// has turned kTurnBudget towards a target without reaching it stops and is held where it
-  /// is (stoppedVertices()) until its target is set again.
+  /// cycle may turn it (kTurnRate) aims only that far towards it: the cycle's goal. One whose
+  /// ring lost kTurnBudget of its way to the target without arriving stops and is held where
+  /// it is (stoppedVertices()) until its target is set to another value.
   void beginStep(const Mesh& mesh, const ConstraintSet& constraints, const Points& position,
                  const VectorX& mass, const SparseRowMatrix& omega2, double period);
   /// The fastest a normal constraint turns its ring towards its target: this many radians
@@ -130,17 +130,27 @@ class ConstraintSolver {
   /// vertices. Each turn towards the target does work against the ring's springs: the
   /// slower, the less (docs/semi-rigid-and-constraints.md measures it).
   static constexpr double kTurnRate = 0.1;
-  /// The most a normal constraint turns towards one target, in all (radians): pi, the most
-  /// any target needs from any normal. A ring that turns back as it is turned (a fold, a
-  /// pinned sheet asked to face the other way) would otherwise be turned for ever, and every
-  /// turn does work: a 7 x 7 grid pinned at its corners, asked to turn its centre's normal
-  /// over, gained 100 J in 300 cycles.
+  /// The most a ring may lose of its way to a target before the constraint stops turning it
+  /// (radians, summed over the cycles, each following a held one, in which its angle from the
+  /// target grew, since it last arrived): pi. Every turn does work against the ring's springs,
+  /// and a ring that turns back as it is turned (the sheet around it is pinned and cannot face
+  /// the other way, or it is floppy) would be turned for ever: a 7 x 7 grid pinned at its
+  /// corners, asked to turn its centre's normal over, gained 100 J in 300 cycles. The way back
+  /// after the ring was let go (a fold) is not counted: a braced ring dragged hard folds many
+  /// times before it settles, then arrives. A stopped constraint holds the normal where it is
+  /// until its target is set to another value.
   static constexpr double kTurnBudget = std::numbers::pi;
   /// The vertices of the normal constraints let go this cycle.
   [[nodiscard]] std::span<const Index> releasedVertices() const { return releasedVertices_; }
   /// The vertices of the normal constraints that spent kTurnBudget on their target and are
   /// held where they are.
   [[nodiscard]] std::span<const Index> stoppedVertices() const { return stoppedVertices_; }
+  /// Those that stopped this cycle, each with its angle from its target (rad).
+  struct Stop {
+    Index vertex;
+    double angle;
+  };
+  [[nodiscard]] std::span<const Stop> newlyStopped() const { return newlyStopped_; }
   /// The virtual forces on the support (|S| x 3) for the current unknowns.
   [[nodiscard]] const Points& forces() const { return forces_; }
   /// Checks the end-of-step positions (N x 3); fills the report's errors and returns true
@@ -180,8 +190,9 @@ class ConstraintSolver {
     Vec3 hint = Vec3::UnitZ();    // the oriented normal at the start of the step
     bool held = true;             // the ring defines its normal at the start of the step
     Vec3 goal = Vec3::UnitZ();    // the normal at the end of the step: the target, or short of it
-    Vec3 target = Vec3::Zero();   // the target the turning below was towards
-    double turned = 0.0;          // radians turned towards it so far (kTurnBudget)
+    Vec3 target = Vec3::Zero();   // the target the record below is for
+    double lastOff = -1.0;        // its angle from the normal at the last cycle's start, if held
+    double lost = 0.0;            // radians the ring lost of its way since it last arrived
     bool stopped = false;         // the budget is spent: hold `kept`
     Vec3 kept = Vec3::UnitZ();
   };
@@ -203,6 +214,7 @@ class ConstraintSolver {
   std::vector<Vec3> pinForce_;
   std::vector<Eigen::Vector2d> lambda_;  // per plane, the weights of its gradient forces
   std::vector<Index> releasedVertices_, stoppedVertices_;
+  std::vector<Stop> newlyStopped_;
   Points forces_, coupleForces_, predicted_, supportEnd_;
   mutable std::vector<Vec3> points_;
   mutable Points scratch_;  // |S| x 3, for the end-of-step gradients

@@ -257,7 +257,6 @@ class Simulation {
   ConstraintReport report_;
   bool warnedUnmet_ = false;
   bool warnedReleased_ = false;
-  bool warnedStopped_ = false;
   std::vector<std::string> warnings_;
 
   ImpulseLedger ledger_;
