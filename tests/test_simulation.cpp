@@ -654,14 +654,24 @@ TEST(Constraints, PinsHoldOnAFullyRigidBody) {
             centreOfMass(model.properties.mass, initial).z() - 0.1);
 }
 
+namespace {
+
+// The corners of a 7 x 7 grid, pinned where they are; its centre is vertex 24.
+constexpr Index kSheetCentre = 24;
+void pinCorners(Simulation& sim) {
+  for (Index corner : {0, 6, 42, 48}) sim.addPositionConstraint(corner);
+}
+
+}  // namespace
+
 TEST(Constraints, NormalConstraintHoldsOnceSettled) {
   ModelSpec spec;
   spec.damping = 0.5;
   spec.angular = 0.5;
   const Model model = makeModel(makeGrid(7), spec);
   Simulation sim(model, settingsFor(model, 0.5));
-  for (Index corner : {0, 6, 42, 48}) sim.addPositionConstraint(corner);
-  const Index centre = 24;
+  pinCorners(sim);
+  const Index centre = kSheetCentre;
   const Vec3 wanted = Vec3(0.3, -0.2, 1.0).normalized();
   sim.addNormalConstraint(centre, wanted);
   sim.addForce(TimedLoad{10, Vec3(0, 0, 1.153)});
@@ -672,7 +682,7 @@ TEST(Constraints, NormalConstraintHoldsOnceSettled) {
   EXPECT_LT(sim.constraintReport().normalError, 1e-3);
   // Without the constraint the same load leaves another normal there.
   Simulation free(model, settingsFor(model, 0.5));
-  for (Index corner : {0, 6, 42, 48}) free.addPositionConstraint(corner);
+  pinCorners(free);
   free.addForce(TimedLoad{10, Vec3(0, 0, 1.153)});
   for (int k = 0; k < 1500; ++k) free.step();
   const auto other = bestPlaneNormal(model.mesh, free.state().position, centre);
@@ -789,8 +799,8 @@ TEST(Constraints, AFarNormalTargetIsTurnedToAtTheTurnRate) {
   spec.angular = 0.5;
   const Model model = makeModel(makeGrid(7), spec);
   Simulation sim(model, settingsFor(model, 0.5));
-  for (Index corner : {0, 6, 42, 48}) sim.addPositionConstraint(corner);
-  const Index centre = 24;
+  pinCorners(sim);
+  const Index centre = kSheetCentre;
   const Vec3 start = *bestPlaneNormal(model.mesh, model.mesh.positions(), centre);
   const Vec3 wanted = Eigen::AngleAxisd(1.0, Vec3::UnitX()) * start;
   sim.addNormalConstraint(centre, wanted);
@@ -836,8 +846,8 @@ TEST(Constraints, ATargetTheRingCannotTurnToStopsTheTurning) {
   // energy stops growing.
   const Model model = makeModel(makeGrid(7), ModelSpec{.angular = 0.5});
   Simulation sim(model, settingsFor(model, 0.5));
-  for (Index corner : {0, 6, 42, 48}) sim.addPositionConstraint(corner);
-  const Index centre = 24;
+  pinCorners(sim);
+  const Index centre = kSheetCentre;
   const Vec3 start = *bestPlaneNormal(model.mesh, model.mesh.positions(), centre);
   sim.addNormalConstraint(centre, -start);
   (void)sim.takeWarnings();
