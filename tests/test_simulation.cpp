@@ -882,6 +882,11 @@ TEST(Constraints, ATargetTheRingCannotTurnToStopsTheTurning) {
   sim.step();
   EXPECT_EQ(sim.constraintReport().stopped, 1);
   EXPECT_EQ(sim.constraintReport().turning, 0);
+  // A state set anew (the window's rollback, a reset) forgets the record.
+  sim.setState(sim.state());
+  sim.step();
+  EXPECT_EQ(sim.constraintReport().stopped, 0);
+  EXPECT_EQ(sim.constraintReport().turning, 1);
   // Another target starts afresh.
   sim.setConstraintNormal(*sim.constraints().find(ConstraintKind::Normal, centre), start);
   sim.step();

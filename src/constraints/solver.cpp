@@ -344,6 +344,14 @@ void ConstraintSolver::beginStep(const Mesh& mesh, const ConstraintSet& constrai
   assembleForces();
 }
 
+void ConstraintSolver::forgetTurning() {
+  for (Plane& plane : planes_) {
+    plane.lastOff = -1.0;
+    plane.lost = 0.0;
+    plane.stopped = false;
+  }
+}
+
 Vec3 ConstraintSolver::planeNormal(const Plane& plane, const Points& supportPosition) const {
   points_.clear();
   for (Index l : plane.locals) points_.push_back(supportPosition.row(l).transpose());

@@ -104,6 +104,7 @@ void Simulation::setState(const State& state) {
   else rigidMomentum_ = RigidMomentum{};
   lastGood_ = state_;
   baseForceValid_ = false;
+  solver_.forgetTurning();  // the normals' turning was towards where the last state was
   energyAtState_ = false;
   ledger_ = ImpulseLedger{};
   stepper_->invalidate();
@@ -392,8 +393,10 @@ void Simulation::step() {
     }
   } catch (...) {
     // A divergence, or anything else thrown mid-cycle (the stepper may be inside a begun
-    // step): back to where the cycle started.
+    // step): back to where the cycle started, the normals' turning record forgotten (it
+    // counted the failed cycle).
     if (substeps_ > 1) setTargets(1.0);
+    solver_.forgetTurning();
     state_.position = lastGood_.position;
     state_.velocity = lastGood_.velocity;
     state_.time = lastGood_.time;
@@ -711,7 +714,7 @@ void Simulation::coupledStep() {
                           " stopped at t = " + std::to_string(state_.time) + " s, " +
                           std::to_string(stop.angle) +
                           " rad from its target: its ring lost pi rad of its way there as it "
-                          "was turned; held where it is until its target is set again");
+                          "was turned; held where it is until its target is set to another value");
     if (!report_.converged && !warnedUnmet_) {
       warnings_.push_back("constraints not met at t = " + std::to_string(state_.time) +
                           " s (position error " + std::to_string(report_.positionError) +

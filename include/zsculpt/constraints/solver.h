@@ -135,16 +135,21 @@ class ConstraintSolver {
   /// target grew, since it last arrived): pi. Every turn does work against the ring's springs,
   /// and a ring that turns back as it is turned (the sheet around it is pinned and cannot face
   /// the other way, or it is floppy) would be turned for ever: a 7 x 7 grid pinned at its
-  /// corners, asked to turn its centre's normal over, gained 100 J in 300 cycles. The way back
-  /// after the ring was let go (a fold) is not counted: a braced ring dragged hard folds many
-  /// times before it settles, then arrives. A stopped constraint holds the normal where it is
-  /// until its target is set to another value.
+  /// corners, asked to turn its centre's normal over, gained 100 J in 300 cycles. In the
+  /// cases measured the loss comes as a flip: the faces around the ring turn over, the
+  /// oriented normal with them, and an angle x from the target becomes pi - x at once; one or
+  /// two flips spend the budget. The way back after the ring was let go (a fold) is not
+  /// counted: a braced ring dragged hard folds many times before it settles, then arrives. A
+  /// stopped constraint holds the normal where it is until its target is set to another value.
   static constexpr double kTurnBudget = std::numbers::pi;
   /// The vertices of the normal constraints let go this cycle.
   [[nodiscard]] std::span<const Index> releasedVertices() const { return releasedVertices_; }
   /// The vertices of the normal constraints that spent kTurnBudget on their target and are
   /// held where they are.
   [[nodiscard]] std::span<const Index> stoppedVertices() const { return stoppedVertices_; }
+  /// Forgets every normal's turning record (what it lost, whether it stopped): after the
+  /// state was set or a cycle rolled back.
+  void forgetTurning();
   /// Those that stopped this cycle, each with its angle from its target (rad).
   struct Stop {
     Index vertex;
