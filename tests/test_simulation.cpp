@@ -840,10 +840,10 @@ TEST(Constraints, AFarNormalTargetIsTurnedToAtTheTurnRate) {
 
 TEST(Constraints, ATargetTheRingCannotTurnToStopsTheTurning) {
   // A sheet pinned at its corners asked to turn its centre's normal over: the ring turns,
-  // folds back and turns again, and every turn does work (before the turn budget the energy
-  // climbed to 100 J in 300 cycles; before the turn rate, to 1e38 J). After pi radians of
-  // turning in all the constraint stops, says so, and holds the normal where it is: the
-  // energy stops growing.
+  // flips over and turns again, and every turn does work (before the turn budget the energy
+  // climbed to 100 J in 300 cycles; before the turn rate, the first cycle put 105 J in). Once
+  // the ring has lost pi radians of its way the constraint stops, says so, and holds the
+  // normal where it is: the energy stops growing.
   const Model model = makeModel(makeGrid(7), ModelSpec{.angular = 0.5});
   Simulation sim(model, settingsFor(model, 0.5));
   pinCorners(sim);
