@@ -300,6 +300,8 @@ void ConstraintSolver::beginStep(const Mesh& mesh, const ConstraintSet& constrai
                                                  support_[static_cast<size_t>(l)]));
     const double ringPeriod = stiffest > 0.0 ? std::sqrt(6.0 / stiffest) : period;
     const double maxTurn = kTurnRate * std::min(1.0, period / ringPeriod);
+    // The most the plane's forces may move a vertex of its ring in the cycle (planesWithinReach).
+    plane.reach = std::min(2.0, kReachTurns * maxTurn) * plane.radius;
     const Vec3 from = plane.hint;
     auto angleTo = [&](const Vec3& to) { return std::atan2(from.cross(to).norm(), from.dot(to)); };
     // What the ring lost of its way to the target since the last cycle, if it was held then
@@ -478,7 +480,7 @@ bool ConstraintSolver::planesWithinReach(const StepResponse& response) {
   for (const Plane& plane : planes_)
     if (plane.held)
       for (Index l : plane.locals)
-        if (!(planeMotion_.row(l).norm() <= 2.0 * plane.radius)) return false;
+        if (!(planeMotion_.row(l).norm() <= plane.reach)) return false;
   return true;
 }
 
@@ -566,8 +568,9 @@ void ConstraintSolver::solve(const ConstraintSet& constraints, const StepRespons
     }
     factor_.compute(jacobian_);
     step_ = factor_.solve(rhs_);
-    // Backtracking: halve the step until the residual shrinks, with every plane's forces
-    // moving its ring by at most its diameter in the cycle, the most any turn of it needs.
+    // Backtracking: halve the step until the residual shrinks, with every held plane's forces
+    // moving its ring by at most its reach in the cycle (kReachTurns; at most its diameter,
+    // the most any turn of it needs).
     // Where a ring folds through a shape with no flattest direction its fitted normal jumps,
     // and the residual can fall by a hair for forces that grow without bound along
     // directions that hardly turn the plane (1e40 within one cycle, and a state of 1e73 J
