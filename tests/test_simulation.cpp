@@ -662,6 +662,16 @@ void pinCorners(Simulation& sim) {
   for (Index corner : {0, 6, 42, 48}) sim.addPositionConstraint(corner);
 }
 
+// Random velocities of this size and zero net momentum, as `zsculpt simulate --perturb`
+// gives them (seed 0).
+void perturb(Simulation& sim, double size) {
+  State s = sim.state();
+  Points kick;
+  randomVelocity(sim.model().properties.mass, size, 0, kick);
+  s.velocity += kick;
+  sim.setState(s);
+}
+
 }  // namespace
 
 TEST(Constraints, NormalConstraintHoldsOnceSettled) {
@@ -901,11 +911,7 @@ TEST(Constraints, ANormalYieldsToASwingItCannotHold) {
   const Model model = makeModel(makeDodecahedron(), ModelSpec{.angular = 0.5});
   auto run = [&](bool normal) {
     Simulation sim(model, settingsFor(model, 0.5));
-    State s = sim.state();
-    Points kick;
-    randomVelocity(model.properties.mass, 0.05, 0, kick);
-    s.velocity += kick;
-    sim.setState(s);
+    perturb(sim, 0.05);
     sim.addPositionConstraint(0, Vec3(-0.5, 1.0, 2.0));
     if (normal) sim.addNormalConstraint(5);
     double highest = 0.0;  // after the drag's first jolt
@@ -945,11 +951,7 @@ TEST(Constraints, AFoldingRingIsLetGoInsteadOfTornApart) {
   };
   auto run = [&](bool normal) {
     Simulation sim(model, settingsFor(model, 0.5));
-    State s = sim.state();
-    Points kick;
-    randomVelocity(model.properties.mass, 0.02, 0, kick);
-    s.velocity += kick;
-    sim.setState(s);
+    perturb(sim, 0.02);
     sim.addPositionConstraint(0, Vec3(1.5, 0.0, 0.1));
     if (normal) sim.addNormalConstraint(900);
     (void)sim.takeWarnings();
