@@ -19,6 +19,22 @@ double entry(const SparseRowMatrix& m, Index row, Index col) {
   return (it != end && *it == col) ? m.valuePtr()[it - m.innerIndexPtr()] : 0.0;
 }
 
+// The angle between unit vectors a and b, accurate near 0 and pi.
+double angleBetween(const Vec3& a, const Vec3& b) {
+  return std::atan2(a.cross(b).norm(), a.dot(b));
+}
+
+// The unit axis of the shortest turn from unit vector `from` to `to`: for opposite ones any
+// axis across `from`, for equal ones zero.
+Vec3 turnAxis(const Vec3& from, const Vec3& to) {
+  const Vec3 axis = from.cross(to);
+  if (axis.norm() > 0.0) return axis.normalized();
+  if (!(from.dot(to) < 0.0)) return Vec3::Zero();
+  Index k = 0;
+  from.cwiseAbs().minCoeff(&k);
+  return from.cross(Vec3::Unit(k)).normalized();
+}
+
 }  // namespace
 
 // ---- StepResponse ---------------------------------------------------------------------------
@@ -186,21 +202,15 @@ void ConstraintSolver::setUp(const Mesh& mesh, const ConstraintSet& constraints)
       for (const Plane& before : previous)
         if (before.id == c.id) {
           plane.hint = before.hint;
-          plane.target = before.target;
-          plane.lastOff = before.lastOff;
-          plane.lost = before.lost;
-          plane.stopped = before.stopped;
-          plane.kept = before.kept;
+          plane.turn = before.turn;
         }
       largestPlane = std::max(largestPlane, fit.size());
       planes_.push_back(std::move(plane));
     }
   }
   releasedVertices_.clear();
-  stoppedVertices_.clear();
   newlyStopped_.clear();
   releasedVertices_.reserve(planes_.size());
-  stoppedVertices_.reserve(planes_.size());
   newlyStopped_.reserve(planes_.size());
   pinForce_.assign(pins_.size(), Vec3::Zero());
   lambda_.assign(planes_.size(), Eigen::Vector2d::Zero());
@@ -239,7 +249,6 @@ void ConstraintSolver::beginStep(const Mesh& mesh, const ConstraintSet& constrai
                                  const SparseRowMatrix& omega2, double period) {
   gatherSupport(position, supportEnd_);
   releasedVertices_.clear();
-  stoppedVertices_.clear();
   newlyStopped_.clear();
   for (size_t q = 0; q < planes_.size(); ++q) {
     Plane& plane = planes_[q];
@@ -278,7 +287,7 @@ void ConstraintSolver::beginStep(const Mesh& mesh, const ConstraintSet& constrai
     for (Index l : plane.locals) points_.push_back(supportEnd_.row(l).transpose());
     plane.held = current.squaredNorm() > 0.0 && planeFlatness(points_) <= kMaxPlaneFlatness;
     if (!plane.held) {
-      plane.lastOff = -1.0;  // the way back from a fold is not lost (kTurnBudget)
+      plane.turn.lastOff = -1.0;  // the way back from a fold is not lost (kTurnBudget)
       for (auto& g : plane.gradient) g.setZero();
       lambda_[q].setZero();
       releasedVertices_.push_back(vertex);
@@ -288,12 +297,8 @@ void ConstraintSolver::beginStep(const Mesh& mesh, const ConstraintSet& constrai
     // may turn in a cycle (kTurnRate), at most kTurnRate a cycle (a ring without springs
     // has no period of its own).
     const Vec3 target = constraints.get(plane.id).value;
-    if (target != plane.target) {  // a new target: a new budget
-      plane.target = target;
-      plane.lastOff = -1.0;
-      plane.lost = 0.0;
-      plane.stopped = false;
-    }
+    TurnRecord& turn = plane.turn;
+    if (target != turn.target) turn = TurnRecord{.target = target};  // a new budget
     double stiffest = 0.0;
     for (Index l : plane.locals)
       stiffest = std::max(stiffest, omega2.coeff(support_[static_cast<size_t>(l)],
@@ -303,38 +308,26 @@ void ConstraintSolver::beginStep(const Mesh& mesh, const ConstraintSet& constrai
     // The most the plane's forces may move a vertex of its ring in the cycle (planesWithinReach).
     plane.reach = std::min(2.0, kReachTurns * maxTurn) * plane.radius;
     const Vec3 from = plane.hint;
-    auto angleTo = [&](const Vec3& to) { return std::atan2(from.cross(to).norm(), from.dot(to)); };
     // What the ring lost of its way to the target since the last cycle, if it was held then
     // too (a turn undone by the shape around it), counted until it arrives (kTurnBudget).
-    const double fromTarget = angleTo(target);
-    if (!plane.stopped) {
-      if (plane.lastOff >= 0.0) plane.lost += std::max(0.0, fromTarget - plane.lastOff);
-      plane.lastOff = fromTarget;
-      if (fromTarget <= maxTurn) plane.lost = 0.0;  // arrived
-      if (plane.lost > kTurnBudget) {
-        plane.stopped = true;  // the budget is spent: hold the normal where it is
-        plane.kept = from;
+    const double fromTarget = angleBetween(from, target);
+    if (!turn.stopped) {
+      if (turn.lastOff >= 0.0) turn.lost += std::max(0.0, fromTarget - turn.lastOff);
+      turn.lastOff = fromTarget;
+      if (fromTarget <= maxTurn) turn.lost = 0.0;  // arrived
+      if (turn.lost > kTurnBudget) {
+        turn.stopped = true;  // the budget is spent: hold the normal where it is
+        turn.kept = from;
         newlyStopped_.push_back({vertex, fromTarget});
       }
     }
     // A stopped plane holds what it kept, or where it is if that is a turn away (it was let
     // go since, and moved).
-    if (plane.stopped && angleTo(plane.kept) > maxTurn) plane.kept = from;
-    const Vec3 aim = plane.stopped ? plane.kept : target;
-    if (plane.stopped) stoppedVertices_.push_back(vertex);
-    Vec3 turnAxis = from.cross(aim);
-    const double off = std::atan2(turnAxis.norm(), from.dot(aim));
-    plane.goal = aim;
-    if (off > maxTurn) {
-      if (turnAxis.norm() > 0.0) {
-        turnAxis.normalize();
-      } else {  // opposite: any axis across the normal
-        Index k = 0;
-        from.cwiseAbs().minCoeff(&k);
-        turnAxis = from.cross(Vec3::Unit(k)).normalized();
-      }
-      plane.goal = Eigen::AngleAxisd(maxTurn, turnAxis) * from;
-    }
+    if (turn.stopped && angleBetween(from, turn.kept) > maxTurn) turn.kept = from;
+    const Vec3 aim = turn.stopped ? turn.kept : target;
+    plane.goal = angleBetween(from, aim) > maxTurn
+                     ? Vec3(Eigen::AngleAxisd(maxTurn, turnAxis(from, aim)) * from)
+                     : aim;
     // Two directions across the goal: the components of the normal the forces act on.
     Index axis = 0;
     plane.goal.cwiseAbs().minCoeff(&axis);
@@ -347,11 +340,7 @@ void ConstraintSolver::beginStep(const Mesh& mesh, const ConstraintSet& constrai
 }
 
 void ConstraintSolver::forgetTurning() {
-  for (Plane& plane : planes_) {
-    plane.lastOff = -1.0;
-    plane.lost = 0.0;
-    plane.stopped = false;
-  }
+  for (Plane& plane : planes_) plane.turn = TurnRecord{};
 }
 
 Vec3 ConstraintSolver::planeNormal(const Plane& plane, const Points& supportPosition) const {
@@ -391,16 +380,8 @@ double ConstraintSolver::planeResidual(const Plane& plane, const Points& support
     return std::numbers::pi;
   }
   // The rotation taking the current normal to the target.
-  Vec3 axis = normal.cross(target);
-  const double angle = std::atan2(axis.norm(), normal.dot(target));
-  if (axis.norm() > 0.0) {
-    axis.normalize();
-  } else if (angle > 1.0) {  // opposite: any axis across the normal
-    Index k = 0;
-    normal.cwiseAbs().minCoeff(&k);
-    axis = normal.cross(Vec3::Unit(k)).normalized();
-  }
-  rotation = angle * axis;
+  const double angle = angleBetween(normal, target);
+  rotation = angle * turnAxis(normal, target);
   return angle;
 }
 
@@ -428,18 +409,20 @@ bool ConstraintSolver::check(const ConstraintSet& constraints, const Points& end
   }
   Vec3 rotation;
   report.released = static_cast<int>(releasedVertices_.size());
-  report.stopped = static_cast<int>(stoppedVertices_.size());
+  report.stopped = 0;
   report.turning = 0;
   report.targetError = 0.0;
   for (const Plane& plane : planes_)
     if (plane.held) {
       report.normalError =
           std::max(report.normalError, planeResidual(plane, supportEnd_, rotation));
-      const Vec3 normal = planeNormal(plane, supportEnd_);
       const Vec3 target = constraints.get(plane.id).value;
       report.targetError =
-          std::max(report.targetError, std::atan2(normal.cross(target).norm(), normal.dot(target)));
-      if (!plane.stopped && plane.goal != target) ++report.turning;
+          std::max(report.targetError, angleBetween(planeNormal(plane, supportEnd_), target));
+      if (plane.turn.stopped)
+        ++report.stopped;
+      else if (plane.goal != target)
+        ++report.turning;
     }
   report.converged =
       report.positionError <= positionTolerance && report.normalError <= normalTolerance;

@@ -119,7 +119,7 @@ class ConstraintSolver {
   /// (releasedVertices(); kMaxPlaneFlatness). A normal further from its target than the
   /// cycle may turn it (kTurnRate) aims only that far towards it: the cycle's goal. One whose
   /// ring lost kTurnBudget of its way to the target without arriving stops and is held where
-  /// it is (stoppedVertices()) until its target is set to another value.
+  /// it is (ConstraintReport::stopped) until its target is set to another value.
   void beginStep(const Mesh& mesh, const ConstraintSet& constraints, const Points& position,
                  const VectorX& mass, const SparseRowMatrix& omega2, double period);
   /// The fastest a normal constraint turns its ring towards its target: this many radians
@@ -151,9 +151,6 @@ class ConstraintSolver {
   static constexpr double kTurnBudget = std::numbers::pi;
   /// The vertices of the normal constraints let go this cycle.
   [[nodiscard]] std::span<const Index> releasedVertices() const { return releasedVertices_; }
-  /// The vertices of the normal constraints that spent kTurnBudget on their target and are
-  /// held where they are.
-  [[nodiscard]] std::span<const Index> stoppedVertices() const { return stoppedVertices_; }
   /// Forgets every normal's turning record (what it lost, whether it stopped): after the
   /// state was set or a cycle rolled back.
   void forgetTurning();
@@ -191,6 +188,14 @@ class ConstraintSolver {
     Index id;
     Index local;
   };
+  // A normal constraint's turning towards its target (kTurnBudget), kept from cycle to cycle.
+  struct TurnRecord {
+    Vec3 target = Vec3::Zero();  // the target it is for (a new one starts a new record)
+    double lastOff = -1.0;       // its angle from the normal at the last cycle's start, if held
+    double lost = 0.0;           // radians the ring lost of its way since it last arrived
+    bool stopped = false;        // the budget is spent: hold `kept`
+    Vec3 kept = Vec3::UnitZ();
+  };
   struct Plane {
     Index id;
     std::vector<Index> locals;  // vertex first, then its one-ring
@@ -203,11 +208,7 @@ class ConstraintSolver {
     Vec3 hint = Vec3::UnitZ();    // the oriented normal at the start of the step
     bool held = true;             // the ring defines its normal at the start of the step
     Vec3 goal = Vec3::UnitZ();    // the normal at the end of the step: the target, or short of it
-    Vec3 target = Vec3::Zero();   // the target the record below is for
-    double lastOff = -1.0;        // its angle from the normal at the last cycle's start, if held
-    double lost = 0.0;            // radians the ring lost of its way since it last arrived
-    bool stopped = false;         // the budget is spent: hold `kept`
-    Vec3 kept = Vec3::UnitZ();
+    TurnRecord turn;              // its constraint's, carried over set-ups
   };
   void assembleForces();
   Vec3 planeNormal(const Plane& plane, const Points& supportPosition) const;
@@ -226,7 +227,7 @@ class ConstraintSolver {
   std::vector<Plane> planes_;
   std::vector<Vec3> pinForce_;
   std::vector<Eigen::Vector2d> lambda_;  // per plane, the weights of its gradient forces
-  std::vector<Index> releasedVertices_, stoppedVertices_;
+  std::vector<Index> releasedVertices_;
   std::vector<Stop> newlyStopped_;
   Points forces_, coupleForces_, predicted_, supportEnd_;
   mutable std::vector<Vec3> points_;
