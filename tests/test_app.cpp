@@ -6,15 +6,15 @@
 
 #include <algorithm>
 #include <atomic>
-#include <cstring>
 #include <chrono>
 #include <cmath>
 #include <cstdlib>
+#include <cstring>
 #include <filesystem>
 #include <fstream>
 #include <iostream>
-#include <nlohmann/json.hpp>
 #include <map>
+#include <nlohmann/json.hpp>
 #include <random>
 #include <thread>
 
@@ -24,6 +24,7 @@
 #include "zsculpt/app/session.h"
 #include "zsculpt/app/solver_thread.h"
 #include "zsculpt/app/triple_buffer.h"
+#include "zsculpt/constraints/constraints.h"
 #include "zsculpt/core/errors.h"
 #include "zsculpt/io/state_io.h"
 #include "zsculpt/mesh/builtin.h"
@@ -232,6 +233,55 @@ TEST(Session, DragMovesTheVertexToItsTargetAndPinsHold) {
   for (int k = 0; k < 10; ++k) session.advance();
   EXPECT_GT(std::abs(session.state().position(27, 2) - 2.0), 1e-3);
   EXPECT_NEAR(session.state().position(0, 2), 0.0, tolerance);  // the pin still holds
+}
+
+TEST(Session, ATimeStepChangeKeepsTheConstraintsAndWhatTheyRecorded) {
+  // A sheet pinned at its corners is asked to turn its centre's normal over, which it cannot:
+  // the normal constraint stops turning (ConstraintSolver::kTurnBudget). A change of period
+  // or scheme in the panel must leave it stopped (it was rebuilt with new ids, and turned
+  // the ring again), and keep the pins and the drag.
+  io::SceneDescription scene;
+  scene.mesh = "builtin:grid:7";
+  scene.properties.mass = 0.5;
+  scene.properties.stiffness = 5.0;
+  scene.properties.angularStiffness = 0.5;
+  scene.simulation.dtRatio = 0.5;
+  Session session(sessionSetupFromScene(scene));
+  for (Index corner : {0, 6, 42}) session.apply(Pin{corner, std::nullopt});
+  const Index centre = 24;
+  const Vec3 up = *bestPlaneNormal(session.model().mesh, session.state().position, centre);
+  session.apply(PinNormal{centre, -up});
+  const Vec3 corner = session.state().position.row(48).transpose();
+  session.apply(DragStart{48, corner});
+  const ConstraintReport& report = session.simulation().constraintReport();
+  int cycles = 0;
+  while (report.stopped == 0 && cycles < 300) {
+    session.advance();
+    ++cycles;
+  }
+  ASSERT_EQ(report.stopped, 1) << "no stop in " << cycles << " cycles";
+  const auto ids = [&] {
+    std::vector<Index> out;
+    for (const Constraint& c : session.simulation().constraints().constraints())
+      out.push_back(c.id);
+    return out;
+  };
+  const std::vector<Index> before = ids();
+  const double period = session.simulation().period();
+  session.apply(SetTimeStep{Scheme::SymplecticEuler, 0.5 * period});
+  session.advance();
+  session.apply(SetTimeStep{Scheme::Default, period});
+  session.advance();
+  EXPECT_EQ(ids(), before);
+  EXPECT_EQ(session.simulation().stepper().scheme(), Scheme::Default);
+  EXPECT_EQ(session.simulation().period(), period);
+  EXPECT_EQ(report.stopped, 1);
+  EXPECT_EQ(report.turning, 0);
+  // The drag still moves its vertex.
+  session.apply(DragMove{corner + Vec3(0, 0, 0.5)});
+  session.advance();
+  EXPECT_NEAR(session.state().position(48, 2), corner.z() + 0.5, 1e-9);
+  EXPECT_EQ(session.pins().size(), 3u);
 }
 
 TEST(Session, PaintingStiffnessChangesTheProperty) {

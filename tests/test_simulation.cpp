@@ -892,6 +892,16 @@ TEST(Constraints, ATargetTheRingCannotTurnToStopsTheTurning) {
   sim.step();
   EXPECT_EQ(sim.constraintReport().stopped, 1);
   EXPECT_EQ(sim.constraintReport().turning, 0);
+  // So does a change of scheme or period (the window's time-step panel).
+  const double period = sim.period();
+  sim.setTimeStep(Scheme::SymplecticEuler, 0.5 * period);
+  sim.step();
+  EXPECT_EQ(sim.constraintReport().stopped, 1);
+  sim.setTimeStep(Scheme::Default, period);
+  sim.step();
+  EXPECT_EQ(sim.constraintReport().stopped, 1);
+  EXPECT_EQ(sim.constraintReport().turning, 0);
+  EXPECT_EQ(sim.period(), period);
   // A state set anew (the window's rollback, a reset) forgets the record.
   sim.setState(sim.state());
   sim.step();

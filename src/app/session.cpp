@@ -188,7 +188,7 @@ void Session::keepPeriodFraction() {
   const double wanted = periodFraction_ * tMax_;
   if (!std::isfinite(wanted) || !(wanted > 0.0) || !(sim_->period() > wanted * (1.0 + 1e-9))) return;
   const double before = sim_->period();
-  rebuildSimulation(sim_->stepper().scheme(), wanted);
+  changeTimeStep(sim_->stepper().scheme(), wanted);
   refreshLimits();
   std::ostringstream msg;
   msg.precision(4);
@@ -197,28 +197,13 @@ void Session::keepPeriodFraction() {
   notices_.push_back(msg.str());
 }
 
-void Session::rebuildSimulation(Scheme scheme, double period) {
+void Session::changeTimeStep(Scheme scheme, double period) {
   if (!(period > 0.0) || !std::isfinite(period))
     throw InvalidInputError("time step: must be a positive number of seconds, got " +
                             std::to_string(period));
-  SimulationSettings settings;
-  settings.scheme = scheme;
-  settings.period = period;
-  // Built aside first: if it throws (e.g. the exact scheme on too large a model) nothing
-  // changes.
-  auto next = std::make_unique<Simulation>(sim_->model(), settings);
-  next->setState(sim_->state());
-  // The constraints carry over (with new ids; the drag's is looked up again).
-  Index dragId = -1;
-  for (const Constraint& c : sim_->constraints().constraints()) {
-    const Index id = c.kind == ConstraintKind::Position ? next->addPositionConstraint(c.vertex, c.value)
-                                                        : next->addNormalConstraint(c.vertex, c.value);
-    if (c.id == dragId_) dragId = id;
-  }
-  next->takeWarnings();
-  sim_ = std::move(next);
-  dragId_ = dragId;
-  reloadLoads();
+  // In place: the constraints keep their ids (the drag's, and a normal's record of how far
+  // it turned), and the momentum ledger its account.
+  sim_->setTimeStep(scheme, period);
 }
 
 void Session::reloadLoads() {
@@ -262,7 +247,7 @@ void Session::apply(const Command& command) {
           },
           [&](const SetTimeStep& s) {
             if (s.scheme == sim_->stepper().scheme() && s.period == sim_->period()) return;
-            rebuildSimulation(s.scheme, s.period);
+            changeTimeStep(s.scheme, s.period);
             refreshLimits();
             if (std::isfinite(tMax_) && tMax_ > 0.0) periodFraction_ = s.period / tMax_;
             unsaved_ = true;

@@ -110,6 +110,17 @@ void Simulation::setState(const State& state) {
   stepper_->invalidate();
 }
 
+void Simulation::setTimeStep(Scheme scheme, double period) {
+  auto next = std::make_unique<Stepper>(model_, scheme, period, settings_.stepper);
+  stepper_ = std::move(next);
+  settings_.scheme = scheme;
+  settings_.period = period;
+  cyclePeriod_ = stepper_->period();
+  substeps_ = 1;           // chosen again at the next cycle
+  responseValid_ = false;  // the constraints' response is the step's
+  energyAtState_ = false;  // the new stepper has not measured the state's energy
+}
+
 void Simulation::propertiesChanged(std::span<const Index> vertices) {
   const PhysicalProperties& p = model_.properties;
   const Index n = model_.mesh.numVertices();

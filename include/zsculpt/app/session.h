@@ -155,7 +155,7 @@ class Session {
   void fill(Snapshot& out, Property scalarProperty);
 
  private:
-  void rebuildSimulation(Scheme scheme, double period);
+  void changeTimeStep(Scheme scheme, double period);
   void reloadLoads();
   void refreshLimits();
   /// After an edit that lowered T_max: bring the period back to the chosen fraction of it

@@ -106,6 +106,12 @@ class Simulation {
   [[nodiscard]] int substeps() const { return substeps_; }
   [[nodiscard]] const SimulationSettings& settings() const { return settings_; }
 
+  /// Changes the scheme and the cycle's period T in place; the state, loads, constraints (their
+  /// ids, and the normals' turning records), settings and ledger stay. The new stepper is
+  /// built first: if that throws (a period that is not positive, the exact scheme on too
+  /// large a model) nothing changes.
+  void setTimeStep(Scheme scheme, double period);
+
   /// Replaces the state (same vertex count, finite). Throws InvalidInputError. With rigid
   /// vertices, the velocity is split into the rigid motion and the deformation; vertices
   /// that are fully rigid (chi = 1) keep only the rigid part of theirs. Resets the ledger.
