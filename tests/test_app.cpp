@@ -284,6 +284,108 @@ TEST(Session, ATimeStepChangeKeepsTheConstraintsAndWhatTheyRecorded) {
   EXPECT_EQ(session.pins().size(), 3u);
 }
 
+TEST(Session, AnEditTheSchemeRefusesChangesNothing) {
+  // The exact scheme needs damping proportional to mass: a mass dab on a damped model
+  // breaks that. The dab is refused, and the values, the history and the simulation stay
+  // as they were (before, the values and the undo entry stayed, the stepper half updated).
+  SessionSetup setup = gridSetup(6);
+  setup.scheme = Scheme::Exact;
+  Session session(std::move(setup));
+  editing::Brush heavier;
+  heavier.property = Property::Stiffness;
+  heavier.value = 8.0;
+  heavier.radius = 1.5;
+  session.apply(Edit{editing::Dab{heavier, editing::BrushCentre::atVertex(20)}});  // accepted
+  session.apply(Edit{editing::Undo{}});
+  const VectorX mass = session.model().properties.mass;
+  const auto undo = session.editor().undoDepth(), redo = session.editor().redoDepth();
+  ASSERT_EQ(redo, 1u);
+  editing::Brush b;
+  b.property = Property::Mass;
+  b.value = 1.0;
+  b.radius = 1.5;
+  EXPECT_THROW(session.apply(Edit{editing::Dab{b, editing::BrushCentre::atVertex(14)}}),
+               InvalidInputError);
+  EXPECT_TRUE(session.model().properties.mass == mass);
+  EXPECT_EQ(session.editor().undoDepth(), undo);
+  EXPECT_EQ(session.editor().redoDepth(), redo);
+  // The simulation runs on the old values: the same bits as a session that never saw it.
+  SessionSetup fresh = gridSetup(6);
+  fresh.scheme = Scheme::Exact;
+  Session reference(std::move(fresh));
+  reference.apply(Edit{editing::Dab{heavier, editing::BrushCentre::atVertex(20)}});
+  reference.apply(Edit{editing::Undo{}});
+  for (int k = 0; k < 20; ++k) {
+    session.advance();
+    reference.advance();
+  }
+  EXPECT_TRUE(sameBits(session.state().position, reference.state().position));
+  // The redo history survived the refusal.
+  session.apply(Edit{editing::Redo{}});
+  EXPECT_DOUBLE_EQ(session.model().properties.stiffness[0], 5.0);
+}
+
+TEST(Session, RefusedPinCommandsChangeNothing) {
+  // A pin brush whose last pin would complete a normal pin's ring (a contradiction) is
+  // refused whole; a drag refused for the same reason leaves the current drag on.
+  Session session(gridSetup(10));
+  session.apply(PinNormal{45, Vec3(0.5, 0, 1)});
+  session.apply(MarkSaved{});
+  EXPECT_THROW(session.apply(PinBrush{editing::BrushCentre::atVertex(45), 1.5, true}),
+               InvalidInputError);
+  EXPECT_TRUE(session.pins().empty()) << session.pins().size() << " pins left";
+  EXPECT_FALSE(session.unsaved());
+  for (Index v : {45, 35, 44, 46}) session.apply(Pin{v, std::nullopt});
+  session.apply(DragStart{0, Vec3(0, 0, 0.3)});
+  EXPECT_THROW(session.apply(DragStart{55, Vec3(5, 5, 0)}), InvalidInputError);
+  Snapshot s;
+  session.fill(s, Property::Stiffness);
+  EXPECT_EQ(s.dragVertex, 0);
+  EXPECT_EQ(session.pins().size(), 4u);
+}
+
+TEST(Session, PinsAreUnsavedWork) {
+  // currentScene() saves the pins in force, so the window must ask before it quits.
+  Session session(gridSetup(6));
+  session.apply(PinBrush{editing::BrushCentre::atVertex(14), 1.5, true});
+  ASSERT_FALSE(session.currentScene().constraints.empty());
+  EXPECT_TRUE(session.unsaved());
+  session.apply(MarkSaved{});
+  session.apply(UnpinAll{});
+  EXPECT_TRUE(session.unsaved());
+  session.apply(MarkSaved{});
+  session.apply(PinNormal{14, std::nullopt});
+  EXPECT_TRUE(session.unsaved());
+}
+
+TEST(Session, ASceneSavedAfterAResetAppliesItsTimedEditsOnce) {
+  // A scene edit (stiffness x2 at 0.3 s) fired, then Reset: the painted values stay, and
+  // the saved scene must not carry the edit again (it did, by time: reopened, the model
+  // was twice as stiff as the live one).
+  SessionSetup setup = gridSetup(6);
+  io::SceneEdit e;
+  e.time = 0.3;
+  e.kind = io::EditKind::Global;
+  e.brush.property = Property::Stiffness;
+  e.brush.mode = io::BrushMode::Multiply;
+  e.brush.value = 2.0;
+  setup.scene.edits.push_back(e);
+  setup = sessionSetupFromScene(setup.scene);
+  Session live(setup);
+  ASSERT_EQ(live.currentScene().edits.size(), 1u);
+  while (live.state().time < 0.6) live.advance();
+  ASSERT_DOUBLE_EQ(live.model().properties.stiffness[0], 10.0);
+  EXPECT_TRUE(live.currentScene().edits.empty());
+  live.apply(Reset{});
+  const io::SceneDescription saved = live.currentScene();
+  EXPECT_TRUE(saved.edits.empty());
+  Session reopened(sessionSetupFromScene(saved));
+  while (live.state().time < 0.6) live.advance();
+  while (reopened.state().time < 0.6) reopened.advance();
+  EXPECT_DOUBLE_EQ(live.model().properties.stiffness[0], 10.0);
+  EXPECT_DOUBLE_EQ(reopened.model().properties.stiffness[0], 10.0);
+}
+
 TEST(Session, PaintingStiffnessChangesTheProperty) {
   Session session(gridSetup(8));
   editing::Brush brush;

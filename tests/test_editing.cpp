@@ -535,6 +535,36 @@ TEST(Undo, HistoryLimitDropsTheOldest) {
   EXPECT_NEAR(model.properties.restLength[0], expected, 1e-15);
 }
 
+TEST(Undo, ARefusedAcceptanceLeavesTheValuesAndTheHistory) {
+  // The caller's acceptance (a simulation that refuses the new values) throws: apply, undo
+  // and redo each put the old values back and leave both histories as they were.
+  Model model = makeModel(makeGrid(5));
+  const State rest = State::atRest(model.mesh);
+  Editor editor(model.mesh, model.angles);
+  editor.apply(EditTarget::of(model), rest, ScaleRest{1.1});
+  editor.apply(EditTarget::of(model), rest, ScaleRest{1.2});
+  editor.undo(EditTarget::of(model), rest);
+  const VectorX before = model.properties.restLength;
+  int calls = 0;
+  const Editor::Acceptance refuse = [&](const EditResult& r) {
+    ++calls;
+    EXPECT_TRUE(r.changed);
+    EXPECT_NE(model.properties.restLength[0], before[0]);  // called with the new values
+    throw InvalidInputError("refused");
+  };
+  EXPECT_THROW(editor.apply(EditTarget::of(model), rest, ScaleRest{2.0}, refuse),
+               InvalidInputError);
+  EXPECT_THROW(editor.undo(EditTarget::of(model), rest, refuse), InvalidInputError);
+  EXPECT_THROW(editor.redo(EditTarget::of(model), rest, refuse), InvalidInputError);
+  EXPECT_EQ(calls, 3);
+  EXPECT_TRUE(model.properties.restLength == before);
+  EXPECT_EQ(editor.undoDepth(), 1u);
+  EXPECT_EQ(editor.redoDepth(), 1u);
+  // Accepted, the same redo goes through.
+  EXPECT_TRUE(editor.redo(EditTarget::of(model), rest, [](const EditResult&) {}).changed);
+  EXPECT_NEAR(model.properties.restLength[0], before[0] * 1.2, 1e-14);
+}
+
 // ---- energy honesty ---------------------------------------------------------------------------
 
 TEST(Energy, StiffnessDabAtRestStoresNothingAndLeavesEveryVertexAtRest) {

@@ -270,18 +270,31 @@ void Session::apply(const Command& command) {
           [&](const Edit& e) {
             const editing::EditTarget target{sim_->model().mesh, sim_->model().angles,
                                              sim_->mutableProperties()};
+            // The simulation takes the new values before the edit enters the history; if it
+            // refuses them (the exact scheme and a mass or damping no longer proportional),
+            // the editor writes the old ones back and the simulation is brought back to
+            // them: the command changes nothing.
+            bool whole = false;
+            std::vector<Index> rows;
+            auto update = [&] {
+              if (whole)
+                sim_->allPropertiesChanged();
+              else
+                sim_->propertiesChanged(rows);
+            };
+            const editing::Editor::Acceptance accept = [&](const editing::EditResult& r) {
+              whole = r.wholeModel;
+              rows.assign(r.matrixRows.begin(), r.matrixRows.end());
+              update();
+            };
             editing::EditResult result;
-            if (std::holds_alternative<editing::Undo>(e.command))
-              result = editor_.undo(target, sim_->state());
-            else if (std::holds_alternative<editing::Redo>(e.command))
-              result = editor_.redo(target, sim_->state());
-            else
-              result = editor_.apply(target, sim_->state(), e.command);
+            try {
+              result = editor_.apply(target, sim_->state(), e.command, accept);
+            } catch (...) {
+              if (whole || !rows.empty()) update();
+              throw;
+            }
             if (!result.changed) return;
-            if (result.wholeModel)
-              sim_->allPropertiesChanged();
-            else
-              sim_->propertiesChanged(result.matrixRows);
             refreshLimits();
             keepPeriodFraction();
             unsaved_ = true;
@@ -323,37 +336,45 @@ void Session::apply(const Command& command) {
             const auto id = sim_->constraints().find(ConstraintKind::Position, p.vertex);
             if (id && !(dragOwnsConstraint_ && *id == dragId_)) {
               if (p.target) sim_->setConstraintTarget(*id, *p.target);
-              return;
-            }
-            if (id) {
+            } else if (id) {
               // Pinning the dragged vertex: its drag constraint becomes the pin.
               dragOwnsConstraint_ = false;
               if (p.target) sim_->setConstraintTarget(*id, *p.target);
-              return;
+            } else {
+              sim_->addPositionConstraint(p.vertex, p.target);
             }
-            sim_->addPositionConstraint(p.vertex, p.target);
+            unsaved_ = true;  // the pins are part of the scene a save writes
           },
           [&](const Unpin& p) {
             checkVertex(p.vertex, "unpin");
             const auto id = sim_->constraints().find(ConstraintKind::Position, p.vertex);
             if (!id || (dragOwnsConstraint_ && *id == dragId_)) return;
-            if (p.vertex == dragVertex_) {
+            if (p.vertex == dragVertex_)
               dragOwnsConstraint_ = true;  // the drag keeps holding it until released
-              return;
-            }
-            sim_->removeConstraint(*id);
+            else
+              sim_->removeConstraint(*id);
+            unsaved_ = true;
           },
           [&](const PinBrush& p) {
             region_.compute(sim_->model().mesh, sim_->state().position, p.centre, p.radius,
                             editing::Falloff::Constant, editing::DistanceKind::Surface);
-            for (Index v : region_.vertices()) {
-              if (v == dragVertex_) continue;
-              const auto id = sim_->constraints().find(ConstraintKind::Position, v);
-              if (p.pin && !id)
-                sim_->addPositionConstraint(v, std::nullopt);
-              else if (!p.pin && id)
-                sim_->removeConstraint(*id);
+            // All or nothing: a pin refused part way (it would contradict a normal pin)
+            // takes the ones this brush added with it.
+            std::vector<Index> added;
+            try {
+              for (Index v : region_.vertices()) {
+                if (v == dragVertex_) continue;
+                const auto id = sim_->constraints().find(ConstraintKind::Position, v);
+                if (p.pin && !id)
+                  added.push_back(sim_->addPositionConstraint(v, std::nullopt));
+                else if (!p.pin && id)
+                  sim_->removeConstraint(*id);
+              }
+            } catch (...) {
+              for (Index id : added) sim_->removeConstraint(id);
+              throw;
             }
+            unsaved_ = true;
           },
           [&](const UnpinAll&) {
             const bool dragging = dragVertex_ >= 0;
@@ -366,6 +387,7 @@ void Session::apply(const Command& command) {
               dragId_ = sim_->addPositionConstraint(vertex, target);
               dragOwnsConstraint_ = true;
             }
+            unsaved_ = true;
           },
           [&](const PinNormal& p) {
             checkVertex(p.vertex, "normal pin");
@@ -373,21 +395,37 @@ void Session::apply(const Command& command) {
             const auto id = sim_->constraints().find(ConstraintKind::Normal, p.vertex);
             if (id) {
               if (p.normal) sim_->setConstraintNormal(*id, *p.normal);
-              return;
+            } else {
+              if (!p.normal &&
+                  !bestPlaneNormal(sim_->model().mesh, sim_->state().position, p.vertex))
+                throw InvalidInputError("normal pin: " + vertexText(p.vertex) +
+                                        " has no normal (too few or collinear neighbours)");
+              sim_->addNormalConstraint(p.vertex, p.normal);
             }
-            if (!p.normal && !bestPlaneNormal(sim_->model().mesh, sim_->state().position, p.vertex))
-              throw InvalidInputError("normal pin: " + vertexText(p.vertex) +
-                                      " has no normal (too few or collinear neighbours)");
-            sim_->addNormalConstraint(p.vertex, p.normal);
+            unsaved_ = true;
           },
           [&](const UnpinNormal& p) {
             checkVertex(p.vertex, "unpin normal");
-            if (const auto id = sim_->constraints().find(ConstraintKind::Normal, p.vertex))
+            if (const auto id = sim_->constraints().find(ConstraintKind::Normal, p.vertex)) {
               sim_->removeConstraint(*id);
+              unsaved_ = true;
+            }
           },
           [&](const DragStart& d) {
             checkVertex(d.vertex, "drag");
             checkFinite(d.target, "drag target");
+            if (d.vertex != dragVertex_ &&
+                !sim_->constraints().find(ConstraintKind::Position, d.vertex)) {
+              // The new drag's constraint first: if it is refused (it would contradict a
+              // normal pin), the current drag goes on.
+              const Index id = sim_->addPositionConstraint(d.vertex, d.target);
+              endDrag();
+              dragId_ = id;
+              dragOwnsConstraint_ = true;
+              dragVertex_ = d.vertex;
+              dragTarget_ = d.target;
+              return;
+            }
             endDrag();
             // A pinned vertex is dragged by its pin (which stays where it is released).
             if (const auto id = sim_->constraints().find(ConstraintKind::Position, d.vertex)) {
@@ -547,9 +585,14 @@ io::SceneDescription Session::currentScene() const {
     else
       scene.constraints.push_back({io::ConstraintType::Normal, c.vertex, {}, c.value});
   }
-  // Timed edits already applied live on in the painted arrays; keep the ones still to come.
-  const double now = sim_->time();
-  std::erase_if(scene.edits, [now](const io::SceneEdit& e) { return e.time <= now; });
+  // Timed edits already applied live on in the painted arrays; keep the ones still to come
+  // (by the schedule, not by the clock: after a Reset or a rollback the applied ones stay
+  // applied and do not come again).
+  std::vector<bool> pending(scene.edits.size(), false);
+  for (const editing::TimedEdit& e : schedule_.pending())
+    if (e.source < pending.size()) pending[e.source] = true;
+  size_t index = 0;
+  std::erase_if(scene.edits, [&](const io::SceneEdit&) { return !pending[index++]; });
   scene.simulation.scheme = toSceneScheme(sim_->stepper().scheme());
   scene.simulation.dt = sim_->period();
   scene.simulation.dtRatio.reset();

@@ -339,7 +339,21 @@ EditResult Editor::write(EditTarget target, const State& state, const Record& re
   return result;
 }
 
-EditResult Editor::commit(EditTarget target, const State& state, Record&& record) {
+EditResult Editor::writeAccepted(EditTarget target, const State& state, const Record& record,
+                                 bool forward, const Acceptance& accept) {
+  EditResult result = write(target, state, record, forward);
+  if (!accept || !result.changed) return result;
+  try {
+    accept(result);
+  } catch (...) {
+    write(target, state, record, !forward);  // the values as they were
+    throw;
+  }
+  return result;
+}
+
+EditResult Editor::commit(EditTarget target, const State& state, Record&& record,
+                          const Acceptance& accept) {
   bool any = false;
   for (const Change& c : record.changes) any = any || !c.indices.empty();
   if (!any) {
@@ -348,7 +362,13 @@ EditResult Editor::commit(EditTarget target, const State& state, Record&& record
     touched_.clear();
     return EditResult{};
   }
-  EditResult result = write(target, state, record, true);
+  EditResult result;
+  try {
+    result = writeAccepted(target, state, record, true, accept);
+  } catch (...) {
+    recycle(std::move(record));
+    throw;
+  }
   while (!redo_.empty()) {
     recycle(std::move(redo_.back()));
     redo_.pop_back();
@@ -365,10 +385,11 @@ EditResult Editor::commit(EditTarget target, const State& state, Record&& record
   return result;
 }
 
-EditResult Editor::apply(EditTarget target, const State& state, const EditCommand& command) {
+EditResult Editor::apply(EditTarget target, const State& state, const EditCommand& command,
+                         const Acceptance& accept) {
   checkTarget(target, state);
-  if (std::holds_alternative<Undo>(command)) return undo(target, state);
-  if (std::holds_alternative<Redo>(command)) return redo(target, state);
+  if (std::holds_alternative<Undo>(command)) return undo(target, state, accept);
+  if (std::holds_alternative<Redo>(command)) return redo(target, state, accept);
 
   Record record = takeRecord();
   auto change = [&](size_t k) -> Change& {
@@ -441,34 +462,33 @@ EditResult Editor::apply(EditTarget target, const State& state, const EditComman
     recycle(std::move(record));  // nothing was written yet
     throw;
   }
-  return commit(target, state, std::move(record));
+  return commit(target, state, std::move(record), accept);
 }
 
-EditResult Editor::undo(EditTarget target, const State& state) {
+EditResult Editor::undo(EditTarget target, const State& state, const Acceptance& accept) {
   checkTarget(target, state);
   if (undo_.empty()) {
     rows_.clear();
     touched_.clear();
     return EditResult{};
   }
-  Record record = std::move(undo_.back());
+  // The record stays on its stack until the undo is accepted.
+  EditResult result = writeAccepted(target, state, undo_.back(), false, accept);
+  redo_.push_back(std::move(undo_.back()));
   undo_.pop_back();
-  EditResult result = write(target, state, record, false);
-  redo_.push_back(std::move(record));
   return result;
 }
 
-EditResult Editor::redo(EditTarget target, const State& state) {
+EditResult Editor::redo(EditTarget target, const State& state, const Acceptance& accept) {
   checkTarget(target, state);
   if (redo_.empty()) {
     rows_.clear();
     touched_.clear();
     return EditResult{};
   }
-  Record record = std::move(redo_.back());
+  EditResult result = writeAccepted(target, state, redo_.back(), true, accept);
+  undo_.push_back(std::move(redo_.back()));
   redo_.pop_back();
-  EditResult result = write(target, state, record, true);
-  undo_.push_back(std::move(record));
   return result;
 }
 

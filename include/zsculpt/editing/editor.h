@@ -25,6 +25,7 @@
 
 #include <cstddef>
 #include <deque>
+#include <functional>
 #include <span>
 #include <string>
 #include <variant>
@@ -112,9 +113,17 @@ class Editor {
   /// value out of its range, an unknown vertex, a non-positive radius ...; also when the
   /// result would leave a property's range, naming the first element) with `target`
   /// unchanged. A command that changed something clears the redo history.
-  EditResult apply(EditTarget target, const State& state, const EditCommand& command);
-  EditResult undo(EditTarget target, const State& state);
-  EditResult redo(EditTarget target, const State& state);
+  ///
+  /// `accept`, when given, is called with the result once the new values are written and
+  /// before the history changes (the caller brings what depends on the values up to date
+  /// there, e.g. Simulation::propertiesChanged). If it throws, the old values are written
+  /// back, the history is left as it was, and the exception goes on to the caller, who then
+  /// brings its dependents back to the old values.
+  using Acceptance = std::function<void(const EditResult&)>;
+  EditResult apply(EditTarget target, const State& state, const EditCommand& command,
+                   const Acceptance& accept = nullptr);
+  EditResult undo(EditTarget target, const State& state, const Acceptance& accept = nullptr);
+  EditResult redo(EditTarget target, const State& state, const Acceptance& accept = nullptr);
 
   [[nodiscard]] size_t undoDepth() const { return undo_.size(); }
   [[nodiscard]] size_t redoDepth() const { return redo_.size(); }
@@ -143,7 +152,11 @@ class Editor {
   // Writes `values` (the before or after of each change), measures the energy and
   // collects matrix rows and vertices.
   EditResult write(EditTarget target, const State& state, const Record& record, bool forward);
-  EditResult commit(EditTarget target, const State& state, Record&& record);
+  EditResult commit(EditTarget target, const State& state, Record&& record,
+                    const Acceptance& accept);
+  // write(forward), then accept; if accept throws, write(!forward) and rethrow.
+  EditResult writeAccepted(EditTarget target, const State& state, const Record& record,
+                           bool forward, const Acceptance& accept);
   void collectEnergyTerms(const EditTarget& target, const Change& change);
   EnergyChange termEnergy(const EditTarget& target, const State& state, Property property) const;
 

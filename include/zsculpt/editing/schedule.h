@@ -30,6 +30,10 @@ class EditSchedule {
   std::span<const TimedEdit> due(double now, double slack = 0.0);
 
   [[nodiscard]] bool finished() const { return next_ == edits_.size(); }
+  /// The edits not returned yet, in order.
+  [[nodiscard]] std::span<const TimedEdit> pending() const {
+    return std::span<const TimedEdit>(edits_).subspan(next_);
+  }
   [[nodiscard]] size_t size() const { return edits_.size(); }
   [[nodiscard]] const std::vector<TimedEdit>& edits() const { return edits_; }
   /// Start over (every edit becomes pending again).
