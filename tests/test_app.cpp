@@ -723,6 +723,10 @@ TEST(Recording, MalformedRecordingsAreRefusedWithTheLine) {
   refuse("{\"type\": \"play\"}\n", "cycle");
   refuse("not json\n", "line 1");
   refuse("{\"cycle\": 0, \"type\": \"play\"}\n{\"zsculpt_recording\": 1}\n", "first line");
+  // Cycles no session records: replaying to them would not end.
+  refuse("{\"cycle\": 0, \"type\": \"play\"}\n{\"end_cycle\": 18446744073709551615}\n",
+         "line 2: end_cycle 18446744073709551615 is more cycles than a session records");
+  refuse("{\"cycle\": 1099511627777, \"type\": \"play\"}\n", "line 1: cycle 1099511627777");
   EXPECT_THROW(readRecording((dir / "missing.jsonl").string()), IOError);
   // A script without a header cannot be replayed on its own.
   const Recording script = readRecording(write("{\"cycle\": 0, \"type\": \"play\"}\n"));

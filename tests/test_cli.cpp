@@ -252,11 +252,85 @@ TEST_F(Cli, BadInputGetsOneLineAndExitTwoAndNoOutputFile) {
                      "bad_state.csv");
 }
 
+TEST_F(Cli, ValuesAreReadAsWrittenOrRefused) {
+  // Each of these once ran: NaN and infinite steps replaced by a default, octal and hex
+  // counts, a count beyond its type saturated, empty values ignored, a trailing separator,
+  // 100000 threads (a crash), a time whose step count overflowed (blamed on --steps).
+  expectOneLineError(run("simulate builtin:dodecahedron --dt nan"), 2, "--dt");
+  expectOneLineError(run("simulate builtin:dodecahedron --dt inf"), 2, "--dt");
+  expectOneLineError(run("simulate builtin:dodecahedron --dt-ratio 1e400"), 2, "--dt-ratio");
+  expectOneLineError(run("render builtin:dodecahedron --dt nan --out " + path("f")), 2, "--dt");
+  expectOneLineError(run("simulate builtin:dodecahedron --time 1e30"), 2, "--time");
+  expectOneLineError(run("simulate builtin:dodecahedron --steps 0x10"), 2, "--steps");
+  expectOneLineError(run("simulate builtin:dodecahedron --steps 99999999999999999999"), 2,
+                     "--steps");
+  expectOneLineError(run("simulate builtin:dodecahedron --mass ''"), 2, "--mass");
+  expectOneLineError(run("simulate builtin:dodecahedron --state-out ''"), 2, "--state-out");
+  expectOneLineError(run("simulate builtin:dodecahedron --force 0:1,2,3,"), 2, "--force");
+  expectOneLineError(run("simulate builtin:dodecahedron --force 0:1,2,3:"), 2, "--force");
+  expectOneLineError(run("bench builtin:dodecahedron --steps 3 --threads 100000"), 2, "--threads");
+  expectOneLineError(run("bench builtin:dodecahedron --steps 3 --dt-ratio nan"), 2, "--dt-ratio");
+  const Result decimal = run("simulate builtin:dodecahedron --steps 010 --json");
+  EXPECT_EQ(decimal.status, 0) << decimal.err;
+  EXPECT_NE(decimal.out.find("\"steps\": 10,"), std::string::npos) << decimal.out;
+  // A normal of huge components is a direction like any other: the same run as 0:1,1,0.
+  const Result huge =
+      run("simulate builtin:dodecahedron --perturb 0.05 --steps 50 --json "
+          "--pin-normal 0:1e200,1e200,0");
+  const Result unit =
+      run("simulate builtin:dodecahedron --perturb 0.05 --steps 50 --json "
+          "--pin-normal 0:1,1,0");
+  ASSERT_EQ(huge.status, 0) << huge.err;
+  const auto energyEnd = [](const std::string& out) {
+    const auto at = out.find("\"energy_end\":");
+    return at == std::string::npos ? std::string() : out.substr(at, out.find(',', at) - at);
+  };
+  EXPECT_FALSE(energyEnd(unit.out).empty());
+  EXPECT_EQ(energyEnd(huge.out), energyEnd(unit.out));
+}
+
+TEST_F(Cli, OutputsAreCheckedBeforeTheWorkAndLinksAndDevicesSurvive) {
+  fs::create_directories(path("folder"));
+  // Refused before the run, and nothing written for the outputs that were fine.
+  const Result intoFolder = run("simulate builtin:torus:20:20 --steps 5 --csv " + path("d.csv") +
+                                " --state-out " + path("folder"));
+  expectOneLineError(intoFolder, 2, "is a directory");
+  EXPECT_FALSE(fs::exists(path("d.csv")));
+  expectOneLineError(run("simulate builtin:dodecahedron --steps 3 --state-out " + path("x.txt/")),
+                     2, "not a file name");
+  EXPECT_FALSE(fs::exists(path("x.txt")));
+  expectOneLineError(run("subdivide builtin:dodecahedron --levels 1 --out " + path("s.xyz")), 2,
+                     "s.xyz");
+  // A link is followed: the link stays, the file it names gets the state.
+  std::ofstream(path("real.csv")) << "old\n";
+  fs::create_symlink(path("real.csv"), path("link.csv"));
+  ASSERT_EQ(run("simulate builtin:dodecahedron --steps 2 --state-out " + path("link.csv")).status,
+            0);
+  EXPECT_TRUE(fs::is_symlink(path("link.csv")));
+  EXPECT_EQ(slurp(path("real.csv")).rfind("x,y,z,vx,vy,vz", 0), 0u);
+  // A device is written to, not replaced by a file.
+  const Result toStdout = run("simulate builtin:dodecahedron --steps 2 --csv /dev/stdout");
+  EXPECT_EQ(toStdout.status, 0) << toStdout.err;
+  EXPECT_NE(toStdout.out.find("step,time,kinetic"), std::string::npos);
+  EXPECT_EQ(run("simulate builtin:dodecahedron --steps 2 --state-out /dev/null").status, 0);
+  EXPECT_TRUE(fs::is_character_file("/dev/null"));
+  expectOneLineError(run("simulate builtin:dodecahedron --steps 2 --state-out /dev/full"), 2,
+                     "/dev/full");
+  EXPECT_TRUE(fs::is_character_file("/dev/full"));
+}
+
 TEST_F(Cli, AScenesErrorsNameTheJsonPath) {
   std::ofstream(path("scene.json")) << R"({"mesh": "builtin:grid", "properties": {"mass": 0}})";
   const Result r = run("info " + path("scene.json"));
   expectOneLineError(r, 2, "scene.json");
   EXPECT_NE(r.err.find("/properties/mass"), std::string::npos) << r.err;
+  // A NUL in a string would cut a file name ("ok.obj\u0000.ply" opened ok.obj) or a message.
+  std::ofstream(path("nul.json")) << R"({"mesh": "builtin:dodecahedron\u0000x"})";
+  expectOneLineError(run("info " + path("nul.json")), 2, "/mesh: the string contains a NUL");
+  // A scene's time whose step count overflows is named as the scene's.
+  std::ofstream(path("long.json"))
+      << R"({"mesh": "builtin:dodecahedron", "simulation": {"time": 1e300}})";
+  expectOneLineError(run("simulate " + path("long.json")), 2, "/simulation/time");
 }
 
 TEST_F(Cli, ReproduceFigure3FindsThePapersThreshold) {

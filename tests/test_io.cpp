@@ -244,6 +244,10 @@ TEST(MeshImport, BadFilesGiveOneLineErrorsNamingTheFile) {
       {data("huge_count.ply"), "declares 3000000000"},
       // Would crash assimp 5.2's OFF reader (fuzz_mesh found it): refused before it.
       {data("face_lines_without_counts.off"), "without a vertex count"},
+      // Assimp 5.2 clamps an index past the last vertex to the last vertex and loads
+      // another face without a word.
+      {data("off_index_out_of_range.off"),
+       "face 1: vertex index 1000 is out of range (the file has 4 vertices)"},
       {corpus("PLY/points.ply"), "empty mesh"},
       // Would make assimp 5.2's glTF reader copy past its buffer (fuzz_mesh found it):
       // refused before it.

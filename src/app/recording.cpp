@@ -166,11 +166,19 @@ Recording readRecording(const std::string& path) {
       const json& e = j.at("end_cycle");
       if (!e.is_number_unsigned()) throw InvalidInputError(where + ": end_cycle: expected a cycle count");
       rec.endCycle = e.get<std::uint64_t>();
+      if (*rec.endCycle > kMaxRecordedCycle)
+        throw InvalidInputError(where + ": end_cycle " + std::to_string(*rec.endCycle) +
+                                " is more cycles than a session records (at most " +
+                                std::to_string(kMaxRecordedCycle) + ")");
       if (j.contains("state_hash")) rec.stateHash = parseHex(j.at("state_hash"), where + ": state_hash");
     } else {
       if (!j.contains("cycle") || !j.at("cycle").is_number_unsigned())
         throw InvalidInputError(where + ": expected \"cycle\" (a step count) with the command");
       const std::uint64_t cycle = j.at("cycle").get<std::uint64_t>();
+      if (cycle > kMaxRecordedCycle)
+        throw InvalidInputError(where + ": cycle " + std::to_string(cycle) +
+                                " is more cycles than a session records (at most " +
+                                std::to_string(kMaxRecordedCycle) + ")");
       if (cycle < lastCycle)
         throw InvalidInputError(where + ": cycle " + std::to_string(cycle) +
                                 " comes after cycle " + std::to_string(lastCycle));
@@ -197,8 +205,7 @@ Recorder::Recorder(std::string path, const SessionSetup& setup) : path_(std::mov
   if (plain.contains("initial_state")) h["initial_state"] = plain.at("initial_state");
   text_ = h.dump() + "\n";
   // Fail early (before a whole session is lost) when the file cannot be written.
-  const auto parent = std::filesystem::path(path_).parent_path();
-  io::ensureWritableDirectory(parent.empty() ? "." : parent.string());
+  io::checkOutputFile(path_);
 }
 
 Recorder::~Recorder() {

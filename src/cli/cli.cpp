@@ -1,12 +1,46 @@
 #include "zsculpt/cli/cli.h"
 
 #include <CLI/CLI.hpp>
+#include <charconv>
 #include <iostream>
+#include <string>
 
 #include "commands.h"
 #include "zsculpt/core/errors.h"
 
 namespace zsculpt::cli {
+
+namespace {
+
+// cli.md reads every value as written: none is empty, and whole numbers are decimal (CLI11
+// alone would read 010 as octal and 0x10 as hexadecimal, turn a count too large for its type
+// into the largest one, and take an empty value as no value). Attached to every option of
+// every command, it runs before the conversion.
+void checkValues(CLI::App& app) {
+  for (CLI::Option* option : app.get_options()) {
+    if (option->get_type_size_max() == 0) continue;  // a flag
+    const std::string type = option->get_type_name();
+    const bool whole = type.rfind("INT", 0) == 0 || type.rfind("UINT", 0) == 0;
+    option->transform(CLI::Validator(
+        [whole](std::string& value) -> std::string {
+          if (value.empty()) return "the value must not be empty";
+          if (!whole) return {};
+          long long parsed = 0;
+          const char* end = value.data() + value.size();
+          const auto [ptr, ec] = std::from_chars(value.data(), end, parsed);
+          if (ec == std::errc::result_out_of_range) return "'" + value + "' is out of range";
+          if (ec != std::errc() || ptr != end)
+            return "'" + value + "' is not a whole number in decimal";
+          value = std::to_string(parsed);  // 010 is ten, not CLI11's octal eight
+          return {};
+        },
+        ""));
+  }
+  for (CLI::App* command : app.get_subcommands([](CLI::App*) { return true; }))
+    checkValues(*command);
+}
+
+}  // namespace
 
 int run(int argc, char** argv) {
   CLI::App app{"zsculpt: physics-based sculpting with the z-domain solver of Ray and Qin"};
@@ -21,6 +55,7 @@ int run(int argc, char** argv) {
   addDemoCommand(app, commands);
   addOpenCommand(app, commands);
   addReplayCommand(app, commands);
+  checkValues(app);
   try {
     app.parse(argc, argv);
   } catch (const CLI::CallForHelp& e) {

@@ -11,6 +11,7 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <cstdlib>
 #include <fstream>
 #include <functional>
 #include <iomanip>
@@ -796,11 +797,16 @@ void addBenchCommand(CLI::App& root, CommandList& commands) {
   app->add_option("--scheme", o->scheme,
                   "default | paper | exact | symplectic-euler | implicit-euler (default: default)");
   app->add_option("--dt-ratio", o->dtRatio, "time step as a fraction of T_max (default 0.5)")
-      ->check(CLI::PositiveNumber);
+      ->check(CLI::Validator(
+          [](std::string& text) -> std::string {
+            const double value = std::strtod(text.c_str(), nullptr);
+            return value > 0.0 && std::isfinite(value) ? "" : "must be a positive, finite number";
+          },
+          ""));
   app->add_option("--steps", o->steps, "steps to time (default: about 2 s worth, at least 5 blocks)")
       ->check(CLI::NonNegativeNumber);
   app->add_option("--threads", o->threads, "threads for the step (default: automatic)")
-      ->check(CLI::NonNegativeNumber);
+      ->check(CLI::Range(0, kMaxThreads));
   app->add_flag("--json", o->json, "a JSON summary on standard output");
   app->add_flag("--table1", o->table1, "the paper's four models beside Table 1's Init and Solv");
   app->add_flag("--scaling", o->scaling,

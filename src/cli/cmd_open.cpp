@@ -8,6 +8,7 @@
 #include "model_options.h"
 #include "zsculpt/app/application.h"
 #include "zsculpt/core/errors.h"
+#include "zsculpt/io/atomic_file.h"
 #include "zsculpt/io/state_io.h"
 #include "zsculpt/render/renderer.h"
 
@@ -102,6 +103,10 @@ int runOpen(const OpenOptions& options) {
   window.startRunning = !options.paused;
   if (!(window.speed > 0.0) || !std::isfinite(window.speed))
     throw InvalidInputError("--speed: must be a positive number");
+  // What is written when the window closes is checked now: a session is not to be lost to
+  // a path that could never be written.
+  for (const std::string* path : {&window.recordPath, &window.stateOut})
+    if (!path->empty()) io::checkOutputFile(*path);
   app::SessionSetup setup = makeSetup(options);
   return app::runWindow(std::move(setup), window);
 }

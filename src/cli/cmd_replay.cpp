@@ -49,9 +49,23 @@ int runReplay(const ReplayOptions& o) {
     throw InvalidInputError(o.recording + ": no header line: a script without a model cannot be replayed "
                             "(run it with `zsculpt open MESH --script FILE`)");
   const auto start = std::chrono::steady_clock::now();
-  const app::ReplayResult r = app::replay(recording, options);
+  app::ReplayResult r;
+  try {
+    r = app::replay(recording, options);
+  } catch (const InvalidInputError& e) {
+    throw InvalidInputError(o.recording + ": " + e.what());  // which file the command was in
+  }
   const double wall = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
-  for (const std::string& n : r.notices) std::cerr << "zsculpt: " << n << "\n";
+  // What the session said, as warnings; a run of the same notice (a model that diverges
+  // every cycle) is told once, with its count.
+  for (size_t k = 0; k < r.notices.size();) {
+    size_t same = k + 1;
+    while (same < r.notices.size() && r.notices[same] == r.notices[k]) ++same;
+    std::cerr << "zsculpt: warning: " << o.recording << ": " << r.notices[k];
+    if (same - k > 1) std::cerr << " (" << same - k << " times)";
+    std::cerr << "\n";
+    k = same;
+  }
   const char* match = !r.matchesRecording ? "null" : (*r.matchesRecording ? "true" : "false");
   if (o.json) {
     std::cout << "{\n"

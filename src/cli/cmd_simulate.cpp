@@ -36,10 +36,7 @@ int runSimulate(const SimulateOptions& options) {
   TimedEdits edits(loaded, sim, options.verifyMatrices);
   // Check the output folders before any work.
   for (const std::string* path : {&options.run.csv, &options.run.stateOut})
-    if (!path->empty()) {
-      const auto parent = std::filesystem::path(*path).parent_path();
-      io::ensureWritableDirectory(parent.empty() ? "." : parent.string());
-    }
+    if (!path->empty()) io::checkOutputFile(*path);
 
   const long steps = resolved.steps;
   const long window = std::max(1L, steps / 10);

@@ -25,6 +25,7 @@ int runSubdivide(const SubdivideOptions& options) {
   if (options.levels < 0 || options.levels > 8)
     throw InvalidInputError("--levels: " + std::to_string(options.levels) +
                             " is outside [0, 8]");
+  io::checkMeshOutput(options.out);  // before the work, not after it
   const LoadedModel loaded = options.model.load();
   SubdivisionOptions sub;
   sub.levels = options.levels;

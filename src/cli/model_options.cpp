@@ -1,5 +1,6 @@
 #include "model_options.h"
 
+#include <algorithm>
 #include <charconv>
 #include <cmath>
 #include <sstream>
@@ -124,7 +125,8 @@ TimedLoad parseTimedLoad(const std::string& text, const std::string& flag) {
   std::string part;
   while (std::getline(in, part, ':')) parts.push_back(part);
   const std::string what = flag + " " + text;
-  if (parts.size() != 2 && parts.size() != 4)
+  // getline drops a trailing empty field: "0:1,2,3:" would pass as "0:1,2,3".
+  if ((parts.size() != 2 && parts.size() != 4) || text.back() == ':')
     throw InvalidInputError(what + ": expected I:X,Y,Z or I:X,Y,Z:T0:T1");
   TimedLoad load;
   const double vertex = parseNumber(parts[0], what);
@@ -134,7 +136,8 @@ TimedLoad parseTimedLoad(const std::string& text, const std::string& flag) {
   std::vector<std::string> xyz;
   std::stringstream v(parts[1]);
   while (std::getline(v, part, ',')) xyz.push_back(part);
-  if (xyz.size() != 3) throw InvalidInputError(what + ": expected three components X,Y,Z");
+  if (xyz.size() != 3 || parts[1].back() == ',')
+    throw InvalidInputError(what + ": expected three components X,Y,Z");
   for (int c = 0; c < 3; ++c) load.value[c] = parseNumber(xyz[c], what);
   if (parts.size() == 4) {
     load.start = parseNumber(parts[2], what);
@@ -173,6 +176,13 @@ RunOptions::Resolved RunOptions::resolve(const LoadedModel& loaded) const {
     r.settings.scheme = schemeFromName(scheme);
   else if (fromScene)
     r.settings.scheme = schemeFromName(io::schemeName(fromScene->scheme));
+  // NaN, infinities and 1e400 (read as infinity) are refused here, not replaced below.
+  if (dt && !(*dt > 0.0 && std::isfinite(*dt)))
+    throw InvalidInputError("--dt: the time step must be a positive, finite number of seconds");
+  if (dtRatio && !(*dtRatio > 0.0 && std::isfinite(*dtRatio)))
+    throw InvalidInputError("--dt-ratio: must be a positive, finite fraction of T_max");
+  if (time && !(*time >= 0.0 && std::isfinite(*time)))
+    throw InvalidInputError("--time: must be a finite number of seconds >= 0");
   const SystemMatrices matrices(loaded.model);
   r.tMax = criticalPeriod(matrices);
   double period = 0.0;
@@ -219,14 +229,26 @@ RunOptions::Resolved RunOptions::resolve(const LoadedModel& loaded) const {
     }
     r.settings.substepStrain = *substepStrain;
   }
+  // A simulated time as a step count, refused (naming where the time came from) when the
+  // count would not fit: the cast of a larger double is undefined, and came out negative.
+  auto stepsFor = [&](double seconds, const std::string& where) {
+    const double count = std::ceil(seconds / period - 1e-9);
+    if (!(count < 0x1p62)) {
+      std::ostringstream msg;
+      msg.precision(6);
+      msg << where << ": " << seconds << " s is too many steps of " << period << " s";
+      throw InvalidInputError(msg.str());
+    }
+    return std::max(0L, static_cast<long>(count));
+  };
   if (steps) {
     r.steps = *steps;
   } else if (time) {
-    r.steps = static_cast<long>(std::ceil(*time / period - 1e-9));
+    r.steps = stepsFor(*time, "--time");
   } else if (fromScene && fromScene->steps) {
     r.steps = static_cast<long>(*fromScene->steps);
   } else if (fromScene && fromScene->time) {
-    r.steps = static_cast<long>(std::ceil(*fromScene->time / period - 1e-9));
+    r.steps = stepsFor(*fromScene->time, loaded.source + ": /simulation/time");
   }
   if (r.steps < 0) throw InvalidInputError("--steps: must not be negative");
   return r;

@@ -99,10 +99,7 @@ RenderJobResult runRenderJob(const RenderJobOptions& o) {
   if (o.out.empty()) throw InvalidInputError("--out: an output folder is required");
   io::ensureWritableDirectory(o.out);
   for (const std::string* path : {&o.run.csv, &o.run.stateOut})
-    if (!path->empty()) {
-      const fs::path parent = fs::path(*path).parent_path();
-      io::ensureWritableDirectory(parent.empty() ? "." : parent.string());
-    }
+    if (!path->empty()) io::checkOutputFile(*path);
   render::OffscreenRenderer renderer;  // IOError when OSMesa cannot give a context
   renderer.checkSize(result.width, result.height, "--size");
 

@@ -166,7 +166,9 @@ Index ConstraintSet::addNormal(const Mesh& mesh, const Points& position, Index v
                                const Vec3& normal) {
   checkVertex(mesh, ConstraintKind::Normal, vertex);
   const std::string what = describeConstraint(ConstraintKind::Normal, vertex);
-  if (!normal.allFinite() || !(normal.norm() > 0.0))
+  // Stable norms: a target of 1e200 components has an infinite plain norm, and normalized()
+  // then made it the zero vector (a constraint that held nothing).
+  if (!normal.allFinite() || !(normal.stableNorm() > 0.0))
     throw InvalidInputError(what + ": the normal must be a finite, non-zero vector");
   const Index valence = mesh.valence(vertex);
   if (valence == 0)
@@ -188,7 +190,7 @@ Index ConstraintSet::addNormal(const Mesh& mesh, const Points& position, Index v
             << "(flatness " << flatness << " > " << kMaxPlaneFlatness << "), so no normal to hold";
     throw InvalidInputError(message.str());
   }
-  const Vec3 unit = normal.normalized();
+  const Vec3 unit = normal.stableNormalized();
   if (const auto existing = find(ConstraintKind::Normal, vertex)) {
     if (get(*existing).value.dot(unit) < std::cos(1e-9))
       throw InvalidInputError(what + ": given twice with different normals " +
@@ -215,10 +217,10 @@ void ConstraintSet::setNormal(Index id, const Vec3& normal) {
   Constraint& c = items_[indexOf(id)];
   if (c.kind != ConstraintKind::Normal)
     throw InvalidInputError(describeConstraint(c.kind, c.vertex) + ": has no normal to set");
-  if (!normal.allFinite() || !(normal.norm() > 0.0))
+  if (!normal.allFinite() || !(normal.stableNorm() > 0.0))
     throw InvalidInputError(describeConstraint(c.kind, c.vertex) +
                             ": the normal must be a finite, non-zero vector");
-  c.value = normal.normalized();
+  c.value = normal.stableNormalized();
 }
 
 void ConstraintSet::remove(Index id) {

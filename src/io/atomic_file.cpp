@@ -8,6 +8,7 @@
 #include <cerrno>
 #include <cstring>
 #include <filesystem>
+#include <fstream>
 #include <random>
 #include <streambuf>
 #include <vector>
@@ -131,10 +132,61 @@ void commit(const std::string& path, const std::string& temporary) {
   }
 }
 
+/// Where a save goes. A regular file (or a new one) is replaced atomically; a symbolic link
+/// is followed, so that the link stays and the file it names is replaced; anything else that
+/// exists (a device such as /dev/stdout or /dev/null, a pipe) is written in place: renaming
+/// over it would put a regular file where the device was.
+struct Target {
+  std::string path;
+  bool inPlace = false;
+};
+
+Target resolveTarget(const std::string& path) {
+  checkTarget(path);
+  std::error_code ec;
+  const fs::file_status status = fs::status(path, ec);  // follows links
+  if (fs::exists(status) && !fs::is_regular_file(status)) return {path, true};
+  if (fs::is_symlink(fs::symlink_status(path, ec))) {
+    const fs::path resolved = fs::weakly_canonical(path, ec);
+    if (ec) fail(path, "cannot follow the link: " + ec.message());
+    checkTarget(resolved.string());
+    return {resolved.string(), false};
+  }
+  return {path, false};
+}
+
+/// Writes to an existing device or pipe through its own descriptor.
+void writeInPlace(const std::string& path, const std::function<void(std::ostream&)>& write) {
+  const int fd = ::open(path.c_str(), O_WRONLY | O_CLOEXEC | O_NOCTTY);
+  if (fd < 0) fail(path, errnoText(errno));
+  int error = 0;
+  bool good = false;
+  try {
+    FdOutBuf buffer(fd);
+    std::ostream out(&buffer);
+    write(out);
+    out.flush();
+    error = buffer.error();
+    good = static_cast<bool>(out);
+  } catch (...) {
+    ::close(fd);
+    throw;
+  }
+  ::close(fd);
+  if (error != 0) fail(path, errnoText(error));
+  if (!good) fail(path, "write failed");
+}
+
 }  // namespace
 
-void writeFileAtomically(const std::string& path, const std::function<void(std::ostream&)>& write) {
-  checkTarget(path);
+void writeFileAtomically(const std::string& requested,
+                         const std::function<void(std::ostream&)>& write) {
+  const Target target = resolveTarget(requested);
+  if (target.inPlace) {
+    writeInPlace(target.path, write);
+    return;
+  }
+  const std::string& path = target.path;
   std::string temporary;
   int fd = createTemporary(path, temporary);
   try {
@@ -156,20 +208,40 @@ void writeFileAtomically(const std::string& path, const std::function<void(std::
   }
 }
 
-void writeFileAtomicallyVia(const std::string& path,
+void writeFileAtomicallyVia(const std::string& requested,
                             const std::function<void(const std::string&)>& writeTo) {
-  checkTarget(path);
+  const Target target = resolveTarget(requested);
+  const std::string& path = target.path;
   std::string temporary;
-  // Created (and so reserved) before the library opens it by name.
-  ::close(createTemporary(path, temporary));
+  // Created (and so reserved) before the library opens it by name; for a device, in the
+  // system's temporary folder (the device's own, /dev, is not for files), then copied in.
+  const fs::path beside =
+      target.inPlace ? fs::temp_directory_path() / fs::path(path).filename() : fs::path(path);
+  ::close(createTemporary(beside.string(), temporary));
   try {
     writeTo(temporary);
+    if (target.inPlace) {
+      std::ifstream in(temporary, std::ios::binary);
+      if (!in) fail(path, "the written file is gone");
+      writeInPlace(path, [&](std::ostream& out) { out << in.rdbuf(); });
+      ::unlink(temporary.c_str());
+      return;
+    }
     syncFile(path, temporary);
     commit(path, temporary);
   } catch (...) {
     ::unlink(temporary.c_str());
     throw;
   }
+}
+
+void checkOutputFile(const std::string& path) {
+  const Target target = resolveTarget(path);
+  if (target.inPlace) {
+    if (::access(target.path.c_str(), W_OK) != 0) fail(path, "not writable: " + errnoText(errno));
+    return;
+  }
+  ensureWritableDirectory(parentOf(target.path).string());
 }
 
 void ensureWritableDirectory(const std::string& dir) {

@@ -512,9 +512,19 @@ void preflightOff(std::istream& in, const std::string& name, std::uintmax_t size
     AssimpOffWalk face(line);
     face.nextToken();
     const unsigned long long count = face.number().value_or(0);
-    if (count >= 1 && count <= 9)
+    if (count >= 1 && count <= 9) {
+      // Assimp 5.2 clamps an index past the last vertex to the last vertex and loads a
+      // different face without a word: refused here, as OBJ and PLY files are.
+      for (unsigned long long k = 0; k < count; ++k) {
+        face.nextToken();
+        const std::optional<unsigned long long> index = face.number();
+        if (index && *index >= *vertices)
+          preflightError(name, "face " + std::to_string(good) + ": vertex index " +
+                                   std::to_string(*index) + " is out of range (the file has " +
+                                   std::to_string(*vertices) + " vertices)");
+      }
       ++good;
-    else if (++bad > *faces)
+    } else if (++bad > *faces)
       preflightError(name, "more face lines without a vertex count of 1 to 9 than the " +
                                std::to_string(*faces) + " faces the header declares");
   }
@@ -2102,6 +2112,11 @@ Mesh loadMeshSource(const std::string& source, MeshLoadReport* report) {
     return makeBuiltin(source);
   }
   return loadMesh(source, report);
+}
+
+void checkMeshOutput(const std::string& path) {
+  (void)exportFormat(path);
+  checkOutputFile(path);
 }
 
 void saveMesh(const Mesh& mesh, const std::string& path) {

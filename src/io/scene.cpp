@@ -147,6 +147,8 @@ std::string describe(const Json& j) {
     case Json::value_t::string: {
       std::string s = j.get<std::string>();
       if (s.size() > 40) s = s.substr(0, 40) + "...";
+      for (char& c : s)
+        if (static_cast<unsigned char>(c) < 0x20 || c == 0x7f) c = '?';  // one printable line
       return "a string (\"" + s + "\")";
     }
     case Json::value_t::boolean:
@@ -287,7 +289,11 @@ class SceneReader {
 
   std::string string(const Json& j, const std::string& pointer) const {
     if (!j.is_string()) fail(pointer, "expected a string, got " + describe(j));
-    return j.get<std::string>();
+    std::string text = j.get<std::string>();
+    // A NUL (\u0000) would end the text where a file name or a message is passed on:
+    // "a.obj\u0000.ply" would open a.obj.
+    if (text.find('\0') != std::string::npos) fail(pointer, "the string contains a NUL character");
+    return text;
   }
 
   bool boolean(const Json& j, const std::string& pointer) const {

@@ -3,6 +3,7 @@
 #include <cerrno>
 #include <charconv>
 #include <cmath>
+#include <cstdlib>
 #include <cstring>
 #include <filesystem>
 #include <fstream>
@@ -94,15 +95,23 @@ State readState(std::istream& in, const std::string& name, Index expectedVertice
       if (column > 6) lineError(name, lineNumber, "more than 6 columns");
       double value = 0.0;
       const auto result = std::from_chars(field.data(), field.data() + field.size(), value);
+      // The field as one printable line (a NUL or a carriage return in a damaged file
+      // would cut the message or break it).
+      std::string shown(field.substr(0, 40));
+      for (char& c : shown)
+        if (static_cast<unsigned char>(c) < 0x20 || c == 0x7f) c = '?';
       if (field.empty() || result.ec == std::errc::invalid_argument ||
           result.ptr != field.data() + field.size())
         lineError(name, lineNumber,
-                  "column " + std::to_string(column) + ": '" + std::string(field.substr(0, 40)) +
-                      "' is not a number");
+                  "column " + std::to_string(column) + ": '" + shown + "' is not a number");
+      // Out of range: too large (infinite, as 1e999) or too small (1e-400, which is not 0).
+      if (result.ec == std::errc::result_out_of_range &&
+          std::isfinite(std::strtod(std::string(field).c_str(), nullptr)))
+        lineError(name, lineNumber,
+                  "column " + std::to_string(column) + ": " + shown + " is too small for a double");
       if (result.ec == std::errc::result_out_of_range || !std::isfinite(value))
         lineError(name, lineNumber,
-                  "column " + std::to_string(column) + ": " + std::string(field.substr(0, 40)) +
-                      " is not finite");
+                  "column " + std::to_string(column) + ": " + shown + " is not finite");
       values.push_back(value);
       if (comma == std::string_view::npos) break;
       start = comma + 1;

@@ -189,6 +189,9 @@ Stepper::Stepper(const Model& model, Scheme scheme, double period, const Stepper
     : model_(model), scheme_(scheme), period_(period), options_(options), system_(model) {
   if (!(period > 0.0) || !std::isfinite(period))
     throw InvalidInputError("time step " + std::to_string(period) + " must be positive");
+  if (options.threads < 0 || options.threads > kMaxThreads)
+    throw InvalidInputError("threads " + std::to_string(options.threads) +
+                            ": must be 0 (automatic) to " + std::to_string(kMaxThreads));
   const Index n = model.mesh.numVertices();
   const int most = options.threads > 0 ? options.threads : automaticThreads(n);
   threads_ = most;

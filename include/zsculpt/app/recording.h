@@ -38,6 +38,10 @@ struct RecordedCommand {
   Command command;
 };
 
+/// The largest cycle a recording may name: 2^40, over five hundred years of cycles at 60 a
+/// second. A larger one is a damaged file, and replaying to it would not end.
+inline constexpr std::uint64_t kMaxRecordedCycle = std::uint64_t{1} << 40;
+
 struct Recording {
   /// Absent in a script without a header.
   std::optional<SessionSetup> setup;

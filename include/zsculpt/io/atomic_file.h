@@ -11,13 +11,20 @@ namespace zsculpt::io {
 
 /// Calls `write` with a stream to a temporary file next to `path`, then fsyncs and renames
 /// it to `path`. On any failure the temporary file is removed, `path` is untouched, and
-/// IOError "<path>: <reason>" is thrown.
+/// IOError "<path>: <reason>" is thrown. A symbolic link is followed (the link stays, the
+/// file it names is replaced); an existing device or pipe (/dev/stdout, /dev/null) is
+/// written in place, not replaced.
 void writeFileAtomically(const std::string& path, const std::function<void(std::ostream&)>& write);
 
 /// Same for a file produced by a library that writes to a path itself (assimp, stb):
 /// `writeTo` receives the temporary path to write.
 void writeFileAtomicallyVia(const std::string& path,
                             const std::function<void(const std::string& temporaryPath)>& writeTo);
+
+/// Before the work whose result goes to `path`: throws IOError "<path>: <reason>" unless a
+/// save there could succeed (a file name, not a folder; its folder exists or can be made
+/// and is writable; an existing device or pipe is writable).
+void checkOutputFile(const std::string& path);
 
 /// Throws IOError "<dir>: <reason>" unless `dir` exists (or can be created) and is writable.
 void ensureWritableDirectory(const std::string& dir);

@@ -44,5 +44,8 @@ Mesh loadMeshSource(const std::string& source, MeshLoadReport* report = nullptr)
 /// regroups; .gltf embeds its buffer); STL keeps triangulated faces only (vertex order and
 /// curve edges are lost).
 void saveMesh(const Mesh& mesh, const std::string& path);
+/// Before the work whose mesh goes to `path`: throws IOError unless saveMesh could write
+/// there (a format it exports, checkOutputFile).
+void checkMeshOutput(const std::string& path);
 
 }  // namespace zsculpt::io

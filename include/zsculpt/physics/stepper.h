@@ -92,6 +92,9 @@ struct StepperOptions {
 
 /// Below this many vertices the automatic thread count is one.
 inline constexpr Index kParallelMinVertices = 1024;
+/// The most threads a step may be asked for (StepperOptions::threads): far beyond any
+/// machine's use for it, and short of what a process can start (100000 crashed it).
+inline constexpr int kMaxThreads = 256;
 /// implicit-euler: conjugate gradients stop at this residual relative to the right side.
 inline constexpr double kImplicitTolerance = 1e-10;
 /// The most threads the automatic choice uses for a model of this many vertices.
