@@ -270,6 +270,9 @@ TEST_F(Cli, ValuesAreReadAsWrittenOrRefused) {
   expectOneLineError(run("simulate builtin:dodecahedron --force 0:1,2,3:"), 2, "--force");
   expectOneLineError(run("bench builtin:dodecahedron --steps 3 --threads 100000"), 2, "--threads");
   expectOneLineError(run("bench builtin:dodecahedron --steps 3 --dt-ratio nan"), 2, "--dt-ratio");
+  // A state "file" without line breaks is refused at once (it read 1.1 GB of zeros first).
+  expectOneLineError(run("simulate builtin:dodecahedron --state-in /dev/zero"), 2,
+                     "longer than 4096 characters");
   const Result decimal = run("simulate builtin:dodecahedron --steps 010 --json");
   EXPECT_EQ(decimal.status, 0) << decimal.err;
   EXPECT_NE(decimal.out.find("\"steps\": 10,"), std::string::npos) << decimal.out;

@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cerrno>
+#include <cmath>
 #include <cstdio>
 #include <cstring>
 #include <filesystem>
@@ -84,9 +85,13 @@ SessionSetup setupFromHeader(const json& header, const std::string& path,
   }
   const json& scheme = header.at("scheme");
   if (!scheme.is_string()) throw InvalidInputError(where + ": scheme: expected a name");
-  setup.scheme = schemeFromName(scheme.get<std::string>());
+  try {
+    setup.scheme = schemeFromName(scheme.get<std::string>());
+  } catch (const InvalidInputError& e) {
+    throw InvalidInputError(where + ": scheme: " + e.what());
+  }
   const json& period = header.at("period");
-  if (!period.is_number() || !(period.get<double>() > 0.0))
+  if (!period.is_number() || !(period.get<double>() > 0.0) || !std::isfinite(period.get<double>()))
     throw InvalidInputError(where + ": period: expected a positive number of seconds");
   setup.period = period.get<double>();
   if (header.contains("mesh_hash")) meshHashOut = parseHex(header.at("mesh_hash"), where + ": mesh_hash");

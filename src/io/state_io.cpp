@@ -68,16 +68,29 @@ void saveState(const State& state, const std::string& path) {
 State readState(std::istream& in, const std::string& name, Index expectedVertices) {
   std::string text;
   size_t lineNumber = 0;
-  if (!std::getline(in, text))
+  // The header is read a character at a time up to a bound: a file without line breaks
+  // (/dev/zero, a binary) is refused at once instead of read whole into one line.
+  constexpr size_t kLongestHeader = 4096;
+  for (int c = in.get(); c != std::char_traits<char>::eof() && c != '\n'; c = in.get()) {
+    if (text.size() == kLongestHeader)
+      lineError(name, 1,
+                "expected the header " + std::string(kStateHeader) + ", got a line longer than " +
+                    std::to_string(kLongestHeader) + " characters");
+    text.push_back(static_cast<char>(c));
+  }
+  if (text.empty() && !in)
     throw InvalidInputError(name + ": empty file, expected the header " +
                             std::string(kStateHeader));
   ++lineNumber;
   std::string_view header = trim(text);
   if (header.size() >= 3 && header.substr(0, 3) == "\xEF\xBB\xBF") header.remove_prefix(3);
-  if (header != kStateHeader)
+  if (header != kStateHeader) {
+    std::string shown(header.substr(0, 60));
+    for (char& c : shown)
+      if (static_cast<unsigned char>(c) < 0x20 || c == 0x7f) c = '?';
     lineError(name, lineNumber,
-              "expected the header " + std::string(kStateHeader) + ", got '" +
-                  std::string(header.substr(0, 60)) + "'");
+              "expected the header " + std::string(kStateHeader) + ", got '" + shown + "'");
+  }
   std::vector<double> values;
   while (std::getline(in, text)) {
     ++lineNumber;
