@@ -40,6 +40,14 @@ void checkValues(CLI::App& app) {
     checkValues(*command);
 }
 
+// An error as one printable line whatever text it quotes (a damaged file's bytes, a line
+// break, a NUL): cli.md promises one line.
+std::string oneLine(std::string text) {
+  for (char& c : text)
+    if (static_cast<unsigned char>(c) < 0x20 || c == 0x7f) c = '?';
+  return text;
+}
+
 }  // namespace
 
 int run(int argc, char** argv) {
@@ -66,7 +74,7 @@ int run(int argc, char** argv) {
     return app.exit(e);
   } catch (const CLI::ParseError& e) {
     // One line, as cli.md asks: `zsculpt: error: <argument>: <reason>`.
-    std::cerr << "zsculpt: error: " << e.what() << "\n";
+    std::cerr << "zsculpt: error: " << oneLine(e.what()) << "\n";
     return 2;
   }
   try {
@@ -78,16 +86,16 @@ int run(int argc, char** argv) {
     std::cout << app.help();
     return 0;
   } catch (const DivergenceError& e) {
-    std::cerr << "zsculpt: error: " << e.what() << "\n";
+    std::cerr << "zsculpt: error: " << oneLine(e.what()) << "\n";
     return 3;
   } catch (const Error& e) {
-    std::cerr << "zsculpt: error: " << e.what() << "\n";
+    std::cerr << "zsculpt: error: " << oneLine(e.what()) << "\n";
     return 2;
   } catch (const std::bad_alloc&) {
     std::cerr << "zsculpt: error: out of memory\n";
     return 2;
   } catch (const std::exception& e) {
-    std::cerr << "zsculpt: error: " << e.what() << "\n";
+    std::cerr << "zsculpt: error: " << oneLine(e.what()) << "\n";
     return 2;
   }
 }
