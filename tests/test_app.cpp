@@ -342,6 +342,33 @@ TEST(Session, RefusedPinCommandsChangeNothing) {
   session.fill(s, Property::Stiffness);
   EXPECT_EQ(s.dragVertex, 0);
   EXPECT_EQ(session.pins().size(), 4u);
+  // The same vertex dragged again (to a place the pins allow) keeps its drag.
+  session.apply(DragStart{0, Vec3(0, 0, 0.5)});
+  session.fill(s, Property::Stiffness);
+  EXPECT_EQ(s.dragVertex, 0);
+  EXPECT_EQ(s.dragTarget, Vec3(0, 0, 0.5));
+}
+
+TEST(Session, ADragMovesToAnotherVertexAsOneStep) {
+  // The ring of vertex 45 (a normal pin) pinned but for 46, which a drag holds: a drag
+  // start on 55 frees 46 as it takes 55, so it is allowed (checked with the drag's
+  // constraint still on 46, it was refused).
+  Session session(gridSetup(10));
+  session.apply(PinNormal{45, Vec3(0.5, 0, 1)});
+  for (Index v : {45, 35, 44}) session.apply(Pin{v, std::nullopt});
+  session.apply(DragStart{46, Vec3(6, 4, 0.5)});
+  session.apply(DragStart{55, Vec3(5, 5, 0)});
+  Snapshot s;
+  session.fill(s, Property::Stiffness);
+  EXPECT_EQ(s.dragVertex, 55);
+  EXPECT_EQ(session.pins().size(), 3u);
+  // Dragging a pinned vertex moves the pin, which a save keeps: unsaved work.
+  session.apply(DragEnd{});
+  session.apply(MarkSaved{});
+  session.apply(DragStart{35, Vec3(5, 3, 0.4)});
+  session.apply(DragMove{Vec3(5, 3, 0.8)});
+  session.apply(DragEnd{});
+  EXPECT_TRUE(session.unsaved());
 }
 
 TEST(Session, PinsAreUnsavedWork) {
@@ -907,6 +934,10 @@ TEST(Window, ScriptedDragAndPaintUnderXvfb) {
   const Model model = io::buildModel(scene, makeGrid(18));
   EXPECT_DOUBLE_EQ(model.properties.stiffness[40], probes["paint_after"].at("scalar").get<double>());
   EXPECT_DOUBLE_EQ(model.properties.stiffness[300], 5.0);
+  // And the view as the script left it (the scene's own camera was saved before).
+  ASSERT_TRUE(scene.camera.yaw && scene.camera.pitch);
+  EXPECT_DOUBLE_EQ(*scene.camera.yaw, -60.0);
+  EXPECT_DOUBLE_EQ(*scene.camera.pitch, 40.0);
 
   // The recorded session replays to the state the window ended with, bit for bit.
   const Recording recording = readRecording((dir / "session.jsonl").string());

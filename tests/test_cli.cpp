@@ -2,6 +2,7 @@
 // summaries, state files, no partial outputs. Runs the real binary.
 
 #include <gtest/gtest.h>
+#include <sys/stat.h>
 #include <sys/wait.h>
 
 #include <cmath>
@@ -261,6 +262,8 @@ TEST_F(Cli, ValuesAreReadAsWrittenOrRefused) {
   expectOneLineError(run("simulate builtin:dodecahedron --dt-ratio 1e400"), 2, "--dt-ratio");
   expectOneLineError(run("render builtin:dodecahedron --dt nan --out " + path("f")), 2, "--dt");
   expectOneLineError(run("simulate builtin:dodecahedron --time 1e30"), 2, "--time");
+  expectOneLineError(run("simulate builtin:dodecahedron --mass 100 --dt-ratio 1e308"), 2,
+                     "--dt-ratio");
   expectOneLineError(run("simulate builtin:dodecahedron --steps 0x10"), 2, "--steps");
   expectOneLineError(run("simulate builtin:dodecahedron --steps 99999999999999999999"), 2,
                      "--steps");
@@ -268,6 +271,11 @@ TEST_F(Cli, ValuesAreReadAsWrittenOrRefused) {
   expectOneLineError(run("simulate builtin:dodecahedron --state-out ''"), 2, "--state-out");
   expectOneLineError(run("simulate builtin:dodecahedron --force 0:1,2,3,"), 2, "--force");
   expectOneLineError(run("simulate builtin:dodecahedron --force 0:1,2,3:"), 2, "--force");
+  // As a scene's loads, so that a session opened with them saves a scene that opens again.
+  expectOneLineError(run("simulate builtin:dodecahedron --force 3:0,0,1:1:1"), 2,
+                     "T1 must be after T0");
+  expectOneLineError(run("simulate builtin:dodecahedron --force 3:0,0,1:-1:2"), 2,
+                     "T0 must be >= 0");
   expectOneLineError(run("bench builtin:dodecahedron --steps 3 --threads 100000"), 2, "--threads");
   expectOneLineError(run("bench builtin:dodecahedron --steps 3 --dt-ratio nan"), 2, "--dt-ratio");
   // A state "file" without line breaks is refused at once (it read 1.1 GB of zeros first).
@@ -311,6 +319,28 @@ TEST_F(Cli, OutputsAreCheckedBeforeTheWorkAndLinksAndDevicesSurvive) {
             0);
   EXPECT_TRUE(fs::is_symlink(path("link.csv")));
   EXPECT_EQ(slurp(path("real.csv")).rfind("x,y,z,vx,vy,vz", 0), 0u);
+  // A dangling link: the file it names is made, the link stays.
+  fs::create_directories(path("sub"));
+  fs::create_symlink("../made.csv", path("sub/dangling.csv"));
+  ASSERT_EQ(
+      run("simulate builtin:dodecahedron --steps 2 --state-out " + path("sub/dangling.csv")).status,
+      0);
+  EXPECT_TRUE(fs::is_symlink(path("sub/dangling.csv")));
+  EXPECT_EQ(slurp(path("made.csv")).rfind("x,y,z,vx,vy,vz", 0), 0u);
+  // /dev/stdout appended to a file by the shell: written through the descriptor, after
+  // what the file held (followed to the file and renamed over it, the file lost it).
+  std::ofstream(path("log.txt")) << "HEADER\n";
+  ASSERT_EQ(std::system((std::string(ZSCULPT_BINARY) +
+                         " simulate builtin:dodecahedron --steps 2 --state-out /dev/stdout >> " +
+                         path("log.txt"))
+                            .c_str()),
+            0);
+  const std::string log = slurp(path("log.txt"));
+  EXPECT_EQ(log.rfind("HEADER\nx,y,z,vx,vy,vz\n", 0), 0u) << log;
+  // A pipe nobody reads is an error, not a hang after the work.
+  ASSERT_EQ(::mkfifo(path("pipe").c_str(), 0600), 0);
+  expectOneLineError(run("simulate builtin:dodecahedron --steps 2 --state-out " + path("pipe")), 2,
+                     "no process reads the pipe");
   // A device is written to, not replaced by a file.
   const Result toStdout = run("simulate builtin:dodecahedron --steps 2 --csv /dev/stdout");
   EXPECT_EQ(toStdout.status, 0) << toStdout.err;
@@ -334,6 +364,29 @@ TEST_F(Cli, AScenesErrorsNameTheJsonPath) {
   std::ofstream(path("long.json"))
       << R"({"mesh": "builtin:dodecahedron", "simulation": {"time": 1e300}})";
   expectOneLineError(run("simulate " + path("long.json")), 2, "/simulation/time");
+  // A scene's own step above the stable limit is named as the scene's (it said --dt-ratio).
+  std::ofstream(path("fast.json"))
+      << R"({"mesh": "builtin:dodecahedron", "simulation": {"dt": 10}})";
+  expectOneLineError(run("simulate " + path("fast.json")), 2, "fast.json: /simulation/dt");
+  // rest_length_scale 0 (linear springs), which --rest-length-scale 0 gives and a save
+  // writes, opens.
+  std::ofstream(path("linear.json"))
+      << R"({"mesh": "builtin:dodecahedron", "properties": {"rest_length_scale": 0}})";
+  EXPECT_EQ(run("info " + path("linear.json")).status, 0);
+}
+
+TEST_F(Cli, AStateOutThenStateInOfASceneContinuesTheRun) {
+  // The scene's perturbation is its initial state's: not added again to a given state.
+  std::ofstream(path("s.json")) << R"({"mesh": "builtin:torus:10:10",
+      "properties": {"angular_stiffness": 0.1}, "simulation": {"perturb": 0.05, "seed": 3}})";
+  const std::string common = "simulate " + path("s.json") + " --substep-strain 0 ";
+  ASSERT_EQ(run(common + "--steps 40 --state-out " + path("whole.csv")).status, 0);
+  ASSERT_EQ(run(common + "--steps 20 --state-out " + path("half.csv")).status, 0);
+  ASSERT_EQ(
+      run(common + "--steps 20 --state-in " + path("half.csv") + " --state-out " + path("two.csv"))
+          .status,
+      0);
+  EXPECT_EQ(slurp(path("two.csv")), slurp(path("whole.csv")));
 }
 
 TEST_F(Cli, ReproduceFigure3FindsThePapersThreshold) {

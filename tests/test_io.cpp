@@ -1035,6 +1035,14 @@ TEST_F(SceneFile, RelativeMeshPathsFollowTheSceneFile) {
   saveScene(scene, path("other/deeper/t.json"));
   EXPECT_NE(readText(path("other/deeper/t.json")).find("\"../../curve.obj\""), std::string::npos);
   EXPECT_EQ(fs::path(loadScene(path("other/deeper/t.json")).mesh), fs::path(path("curve.obj")));
+  // Saved into a folder reached through a link: the path leads from the real folder, so
+  // the scene opens by either name (by the text of the path it named "../curve.obj", which
+  // only worked through the link).
+  fs::create_directories(dir_ / "real/a/b");
+  fs::create_directory_symlink(dir_ / "real/a/b", dir_ / "link");
+  saveScene(scene, path("link/u.json"));
+  for (const char* name : {"link/u.json", "real/a/b/u.json"})
+    EXPECT_EQ(loadMeshSource(loadScene(path(name)).mesh).numEdges(), 3) << name;
 }
 
 TEST_F(SceneFile, SaveAndLoadRoundTrip) {
@@ -1137,7 +1145,7 @@ TEST_F(SceneFile, InvalidScenesNameTheJsonPathAndReason) {
        "/properties/rigidity: rigidity must be in [0, 1]"},
       {with(R"("properties": {"stiffness_cap": 0})"), "/properties/stiffness_cap: must be > 0"},
       {with(R"("properties": {"rest_length_scale": -1})"),
-       "/properties/rest_length_scale: must be > 0"},
+       "/properties/rest_length_scale: must be >= 0"},
       {with(R"("properties": {"mass": 1e999})"), "number overflow"},
       // Unknown keys, at every level.
       {with(R"("meshes": 1)"), "/meshes: unknown key"},

@@ -340,9 +340,13 @@ void Window::saveScene(const std::string& path, bool thenQuit) {
     return;
   }
   quitAfterSave_ = thenQuit;
-  solver_->runOnSolver([path](Session& session) {
+  // The view as it is now (the session knows only the camera the scene was opened with).
+  const io::CameraSettings camera = cameraSettingsOf(camera_);
+  solver_->runOnSolver([path, camera](Session& session) {
     try {
-      io::saveScene(session.currentScene(), path);
+      io::SceneDescription scene = session.currentScene();
+      scene.camera = camera;
+      io::saveScene(scene, path);
       session.apply(MarkSaved{});
       return "scene saved to " + path;
     } catch (const Error& e) {

@@ -414,26 +414,24 @@ void Session::apply(const Command& command) {
           [&](const DragStart& d) {
             checkVertex(d.vertex, "drag");
             checkFinite(d.target, "drag target");
-            if (d.vertex != dragVertex_ &&
-                !sim_->constraints().find(ConstraintKind::Position, d.vertex)) {
-              // The new drag's constraint first: if it is refused (it would contradict a
-              // normal pin), the current drag goes on.
-              const Index id = sim_->addPositionConstraint(d.vertex, d.target);
+            // Refused (the new drag would contradict a normal pin), nothing changes: the
+            // current drag goes on. Its own constraint moves to the new vertex in one step,
+            // checked without it where it was.
+            const auto pinned = sim_->constraints().find(ConstraintKind::Position, d.vertex);
+            const bool ownDrag = dragVertex_ >= 0 && dragOwnsConstraint_;
+            if (pinned && !(ownDrag && *pinned == dragId_)) {
+              // A pinned vertex is dragged by its pin (which stays where it is released).
               endDrag();
-              dragId_ = id;
-              dragOwnsConstraint_ = true;
-              dragVertex_ = d.vertex;
-              dragTarget_ = d.target;
-              return;
-            }
-            endDrag();
-            // A pinned vertex is dragged by its pin (which stays where it is released).
-            if (const auto id = sim_->constraints().find(ConstraintKind::Position, d.vertex)) {
-              dragId_ = *id;
+              dragId_ = *pinned;
               dragOwnsConstraint_ = false;
               sim_->setConstraintTarget(dragId_, d.target);
+              unsaved_ = true;  // the pin's target is saved with the scene
+            } else if (ownDrag) {
+              sim_->moveConstraint(dragId_, d.vertex, d.target);
             } else {
-              dragId_ = sim_->addPositionConstraint(d.vertex, d.target);
+              const Index id = sim_->addPositionConstraint(d.vertex, d.target);
+              endDrag();  // a drag that held a pin leaves it where it is
+              dragId_ = id;
               dragOwnsConstraint_ = true;
             }
             dragVertex_ = d.vertex;
@@ -444,6 +442,7 @@ void Session::apply(const Command& command) {
             if (dragVertex_ < 0) return;
             dragTarget_ = d.target;
             sim_->setConstraintTarget(dragId_, d.target);
+            if (!dragOwnsConstraint_) unsaved_ = true;  // a pin moved
           },
           [&](const DragEnd&) { endDrag(); },
           [&](const MarkSaved&) { unsaved_ = false; },

@@ -29,6 +29,16 @@ void applyCameraSettings(const io::CameraSettings& s, render::Camera& camera) {
   if (s.fov) camera.fovYDegrees = *s.fov;
 }
 
+io::CameraSettings cameraSettingsOf(const render::Camera& camera) {
+  io::CameraSettings s;
+  s.target = camera.target;
+  s.distance = camera.distance;
+  s.yaw = camera.yawDegrees;
+  s.pitch = camera.pitchDegrees;
+  s.fov = camera.fovYDegrees;
+  return s;
+}
+
 FrameBuilder::FrameBuilder(const Mesh& mesh) : mesh_(mesh) {}
 
 void FrameBuilder::setLevels(int levels) {

@@ -52,7 +52,15 @@ app::SessionSetup makeSetup(const OpenOptions& o) {
   }
   // Whatever the flags did to the model is now in the scene, as values or full arrays.
   io::recordProperties(scene, loaded.model);
-  const RunOptions::Resolved resolved = o.run.resolve(loaded);
+  // A scene's own step above the stable limit (the window allows one, in red, and saves
+  // it) opens with a warning: refused, the saved session could not be opened again. A flag
+  // asking for one is still refused without --allow-unstable.
+  RunOptions run = o.run;
+  if (!run.dt && !run.dtRatio) run.allowUnstable = true;
+  const RunOptions::Resolved resolved = run.resolve(loaded);
+  if (!resolved.aboveStableLimit.empty() && !o.run.allowUnstable)
+    std::cerr << "zsculpt: warning: " << resolved.aboveStableLimit
+              << "; it will diverge: lower it in the Simulation panel\n";
   if (o.perturb) {
     if (!(*o.perturb >= 0.0) || !std::isfinite(*o.perturb))
       throw InvalidInputError("--perturb: must be a finite number >= 0");
@@ -85,7 +93,8 @@ app::SessionSetup makeSetup(const OpenOptions& o) {
   setup.period = resolved.settings.period;
   if (!o.stateIn.empty()) {
     State state = io::loadState(o.stateIn, n);
-    if (scene.simulation.perturb > 0.0) {
+    // As simulate: only an explicit --perturb is added to a given state.
+    if (o.perturb && scene.simulation.perturb > 0.0) {
       Points kick;
       randomVelocity(loaded.model.properties.mass, scene.simulation.perturb,
                      static_cast<unsigned>(scene.simulation.seed), kick);

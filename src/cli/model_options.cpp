@@ -142,7 +142,9 @@ TimedLoad parseTimedLoad(const std::string& text, const std::string& flag) {
   if (parts.size() == 4) {
     load.start = parseNumber(parts[2], what);
     load.end = parseNumber(parts[3], what);
-    if (!(load.end >= load.start)) throw InvalidInputError(what + ": T1 is before T0");
+    // As a scene's loads (scene-format.md), so that a session saved with them opens again.
+    if (!(load.start >= 0.0)) throw InvalidInputError(what + ": T0 must be >= 0");
+    if (!(load.end > load.start)) throw InvalidInputError(what + ": T1 must be after T0");
   }
   return load;
 }
@@ -196,6 +198,11 @@ RunOptions::Resolved RunOptions::resolve(const LoadedModel& loaded) const {
     period = (fromScene && fromScene->dtRatio ? *fromScene->dtRatio : 0.5) * r.tMax;
   }
   if (!std::isfinite(period)) {
+    // A ratio so large that ratio x T_max overflows is refused, not replaced.
+    if (std::isfinite(r.tMax))
+      throw InvalidInputError(
+          (dtRatio ? std::string("--dt-ratio") : loaded.source + ": /simulation/dt_ratio") +
+          ": the time step it gives is not a finite number of seconds");
     // No stiffness at all (a free particle cloud): any step is stable; pick 10 ms.
     period = 0.01;
   }
@@ -206,16 +213,24 @@ RunOptions::Resolved RunOptions::resolve(const LoadedModel& loaded) const {
   // above the tight one, so the eigenvalue is computed only when the step exceeds it.
   const double cheapLimit =
       stablePeriodLimit(r.settings.scheme, 2.0 * matrices.omega2().diagonal().maxCoeff());
-  if (period > cheapLimit && !allowUnstable) {
+  if (period > cheapLimit) {
     const double limit = stablePeriodLimit(r.settings.scheme, largestEigenvalue(matrices));
     if (period > limit) {
+      // Named where the step came from: a flag, or the scene's own dt or dt_ratio.
+      const std::string source = dt                           ? std::string("--dt")
+                                 : dtRatio                    ? std::string("--dt-ratio")
+                                 : fromScene && fromScene->dt ? loaded.source + ": /simulation/dt"
+                                 : fromScene && fromScene->dtRatio
+                                     ? loaded.source + ": /simulation/dt_ratio"
+                                     : std::string("the default time step");
       std::ostringstream msg;
       msg.precision(6);
-      msg << (dt ? "--dt" : "--dt-ratio") << ": time step " << period << " s (" << period / r.tMax
+      msg << source << ": time step " << period << " s (" << period / r.tMax
           << " T_max) is above the stable limit " << limit << " s (" << limit / r.tMax
-          << " T_max) of scheme " << schemeName(r.settings.scheme)
-          << "; pass --allow-unstable to run it anyway";
-      throw InvalidInputError(msg.str());
+          << " T_max) of scheme " << schemeName(r.settings.scheme);
+      r.aboveStableLimit = msg.str();
+      if (!allowUnstable)
+        throw InvalidInputError(msg.str() + "; pass --allow-unstable to run it anyway");
     }
   }
   r.settings.period = period;
@@ -257,8 +272,12 @@ RunOptions::Resolved RunOptions::resolve(const LoadedModel& loaded) const {
 void RunOptions::prepare(const LoadedModel& loaded, Simulation& sim) const {
   State state = State::atRest(loaded.model.mesh);
   if (!stateIn.empty()) state = io::loadState(stateIn, loaded.model.mesh.numVertices());
+  // The scene's perturbation is part of its own initial state: a state given with --state-in
+  // replaces that state, perturbation included (added again, a run continued from its own
+  // --state-out did not continue). An explicit --perturb is added to whatever state there is.
   const double amplitude =
-      perturb ? *perturb : (loaded.scene ? loaded.scene->simulation.perturb : 0.0);
+      perturb ? *perturb
+              : (loaded.scene && stateIn.empty() ? loaded.scene->simulation.perturb : 0.0);
   if (!(amplitude >= 0.0) || !std::isfinite(amplitude))
     throw InvalidInputError("--perturb: must be a finite number >= 0");
   if (amplitude > 0.0) {

@@ -57,6 +57,9 @@ struct RunOptions {
     SimulationSettings settings;
     long steps = 1000;
     double tMax = 0.0;
+    /// When the period is above the scheme's stable limit (allowed by --allow-unstable, or
+    /// by `open` for a scene's own step): what is wrong, naming where the step came from.
+    std::string aboveStableLimit;
   };
   [[nodiscard]] Resolved resolve(const LoadedModel& loaded) const;
   /// Initial state (rest, --state-in, --perturb), loads and constraints (scene, then flags)

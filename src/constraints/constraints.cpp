@@ -213,6 +213,40 @@ void ConstraintSet::setTarget(Index id, const Vec3& target) {
   c.value = target;
 }
 
+void ConstraintSet::movePosition(const Mesh& mesh, Index id, Index vertex, const Vec3& target) {
+  const size_t at = indexOf(id);
+  if (items_[at].kind != ConstraintKind::Position)
+    throw InvalidInputError(describeConstraint(items_[at].kind, items_[at].vertex) +
+                            ": not a position constraint");
+  checkVertex(mesh, ConstraintKind::Position, vertex);
+  const std::string what = describeConstraint(ConstraintKind::Position, vertex);
+  if (!target.allFinite()) throw InvalidInputError(what + ": the target is not finite");
+  if (vertex == items_[at].vertex) {
+    items_[at].value = target;
+    return;
+  }
+  if (find(ConstraintKind::Position, vertex))
+    throw InvalidInputError(what + ": another position constraint holds the vertex");
+  const Constraint before = items_[at];
+  items_[at].vertex = vertex;
+  items_[at].value = target;
+  try {
+    // As addPosition: the pin in its new place may complete a constrained normal's ring (and
+    // no longer counts where it was).
+    std::vector<Index> fit;
+    for (const Constraint& c : items_) {
+      if (c.kind != ConstraintKind::Normal) continue;
+      normalFitVertices(mesh, c.vertex, fit);
+      if (std::find(fit.begin(), fit.end(), vertex) != fit.end())
+        checkNormalAgainstPins(mesh, c.vertex, c.value);
+    }
+  } catch (const InvalidInputError&) {
+    items_[at] = before;
+    throw;
+  }
+  ++revision_;
+}
+
 void ConstraintSet::setNormal(Index id, const Vec3& normal) {
   Constraint& c = items_[indexOf(id)];
   if (c.kind != ConstraintKind::Normal)

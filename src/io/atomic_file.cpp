@@ -6,11 +6,13 @@
 
 #include <atomic>
 #include <cerrno>
+#include <charconv>
 #include <cstring>
 #include <filesystem>
 #include <fstream>
 #include <random>
 #include <streambuf>
+#include <string_view>
 #include <vector>
 
 #include "zsculpt/core/errors.h"
@@ -141,24 +143,56 @@ struct Target {
   bool inPlace = false;
 };
 
+/// The descriptor a path names by number (/dev/stdout, /dev/stderr, /dev/fd/N,
+/// /proc/self/fd/N), or -1. Such a path is written through that descriptor as it stands:
+/// reopened (or followed to the file it is), `>> log` would be overwritten from its start,
+/// or replaced.
+int namedDescriptor(const std::string& path) {
+  if (path == "/dev/stdout") return 1;
+  if (path == "/dev/stderr") return 2;
+  for (const char* prefix : {"/dev/fd/", "/proc/self/fd/"}) {
+    const std::string_view p(prefix);
+    if (path.size() <= p.size() || path.compare(0, p.size(), p) != 0) continue;
+    int fd = -1;
+    const char* end = path.data() + path.size();
+    const auto [ptr, ec] = std::from_chars(path.data() + p.size(), end, fd);
+    if (ec == std::errc() && ptr == end && fd >= 0) return fd;
+  }
+  return -1;
+}
+
 Target resolveTarget(const std::string& path) {
   checkTarget(path);
+  if (namedDescriptor(path) >= 0) return {path, true};
   std::error_code ec;
   const fs::file_status status = fs::status(path, ec);  // follows links
   if (fs::exists(status) && !fs::is_regular_file(status)) return {path, true};
-  if (fs::is_symlink(fs::symlink_status(path, ec))) {
-    const fs::path resolved = fs::weakly_canonical(path, ec);
+  // A symbolic link: the file it names, by following the chain link by link (a dangling
+  // link names a file still to be made; weakly_canonical would give the link itself).
+  fs::path target(path);
+  for (int depth = 0; fs::is_symlink(fs::symlink_status(target, ec)); ++depth) {
+    if (depth == 40) fail(path, "too many levels of symbolic links");
+    const fs::path next = fs::read_symlink(target, ec);
     if (ec) fail(path, "cannot follow the link: " + ec.message());
-    checkTarget(resolved.string());
-    return {resolved.string(), false};
+    target = next.is_absolute() ? next : target.parent_path() / next;
   }
-  return {path, false};
+  if (target != fs::path(path)) checkTarget(target.string());
+  return {target.string(), false};
 }
 
-/// Writes to an existing device or pipe through its own descriptor.
+/// Writes to an existing device or pipe (or a descriptor named by number) in place.
 void writeInPlace(const std::string& path, const std::function<void(std::ostream&)>& write) {
-  const int fd = ::open(path.c_str(), O_WRONLY | O_CLOEXEC | O_NOCTTY);
-  if (fd < 0) fail(path, errnoText(errno));
+  int fd = namedDescriptor(path);
+  const bool own = fd < 0;
+  if (own) {
+    // Non-blocking to open: a pipe nobody reads is an error (ENXIO), not a hang after all the
+    // work; then blocking again for the writes.
+    fd = ::open(path.c_str(), O_WRONLY | O_CLOEXEC | O_NOCTTY | O_NONBLOCK);
+    if (fd < 0)
+      fail(path, errno == ENXIO ? std::string("no process reads the pipe") : errnoText(errno));
+    const int flags = ::fcntl(fd, F_GETFL);
+    if (flags >= 0) ::fcntl(fd, F_SETFL, flags & ~O_NONBLOCK);
+  }
   int error = 0;
   bool good = false;
   try {
@@ -169,10 +203,10 @@ void writeInPlace(const std::string& path, const std::function<void(std::ostream
     error = buffer.error();
     good = static_cast<bool>(out);
   } catch (...) {
-    ::close(fd);
+    if (own) ::close(fd);
     throw;
   }
-  ::close(fd);
+  if (own) ::close(fd);
   if (error != 0) fail(path, errnoText(error));
   if (!good) fail(path, "write failed");
 }
@@ -238,7 +272,11 @@ void writeFileAtomicallyVia(const std::string& requested,
 void checkOutputFile(const std::string& path) {
   const Target target = resolveTarget(path);
   if (target.inPlace) {
-    if (::access(target.path.c_str(), W_OK) != 0) fail(path, "not writable: " + errnoText(errno));
+    const int fd = namedDescriptor(path);
+    const bool writable =
+        fd >= 0 ? (::fcntl(fd, F_GETFL) >= 0 && (::fcntl(fd, F_GETFL) & O_ACCMODE) != O_RDONLY)
+                : ::access(target.path.c_str(), W_OK) == 0;
+    if (!writable) fail(path, "not writable");
     return;
   }
   ensureWritableDirectory(parentOf(target.path).string());

@@ -347,7 +347,9 @@ void readProperties(const SceneReader& r, const Json& j, UniformProperties& p) {
     p.stiffnessCap = v->is_null() ? std::numeric_limits<double>::infinity()
                                   : r.positive(*v, at + "/stiffness_cap");
   if (auto* v = find(j, "rest_length_scale"))
-    p.restLengthScale = r.positive(*v, at + "/rest_length_scale");
+    // 0 is allowed, as --rest-length-scale 0 is: every rest length 0, equation 1's linear
+    // springs (a scene saved from such a session must open again).
+    p.restLengthScale = r.nonNegative(*v, at + "/rest_length_scale");
   if (auto* v = find(j, "gravity")) p.gravity = r.vec3(*v, at + "/gravity");
 }
 
@@ -586,7 +588,18 @@ std::string resolveMesh(const std::string& mesh, const std::string& sceneFile) {
   if (isBuiltinName(mesh)) return mesh;
   const fs::path path(mesh);
   if (path.is_absolute() || sceneFile.empty()) return path.lexically_normal().string();
-  return (fs::path(sceneFile).parent_path() / path).lexically_normal().string();
+  // Relative to the folder the scene file is in, as the system finds it (through symbolic
+  // links, as meshForFile writes it); a scene written by the text of its path before (a
+  // folder reached through a link) still opens by that text.
+  const fs::path folder = fs::path(sceneFile).parent_path();
+  const fs::path byText = (folder / path).lexically_normal();
+  std::error_code ec;
+  const fs::path real = fs::weakly_canonical(folder.empty() ? fs::path(".") : folder, ec);
+  if (!ec) {
+    const fs::path physical = (real / path).lexically_normal();
+    if (fs::exists(physical, ec) || !fs::exists(byText, ec)) return physical.string();
+  }
+  return byText.string();
 }
 
 }  // namespace
@@ -775,11 +788,16 @@ OrderedJson overrideJson(const PropertyOverride& o) {
 
 std::string meshForFile(const std::string& mesh, const std::string& sceneFile) {
   if (mesh.empty() || isBuiltinName(mesh)) return mesh;
+  // Both through symbolic links (weakly_canonical), so that the relative path leads from
+  // the folder the scene file really is in: by the text of the paths, a scene saved into a
+  // folder reached through a link named the mesh by a path that only worked through it.
   std::error_code ec;
-  const fs::path absoluteMesh = fs::absolute(mesh, ec).lexically_normal();
+  fs::path absoluteMesh = fs::weakly_canonical(mesh, ec);
+  if (ec) absoluteMesh = fs::absolute(mesh, ec).lexically_normal();
   fs::path folder = fs::path(sceneFile).parent_path();
-  const fs::path absoluteFolder =
-      fs::absolute(folder.empty() ? "." : folder, ec).lexically_normal();
+  if (folder.empty()) folder = ".";
+  fs::path absoluteFolder = fs::weakly_canonical(folder, ec);
+  if (ec) absoluteFolder = fs::absolute(folder, ec).lexically_normal();
   const fs::path relative = absoluteMesh.lexically_relative(absoluteFolder);
   return relative.empty() ? absoluteMesh.generic_string() : relative.generic_string();
 }

@@ -290,6 +290,10 @@ void Simulation::setConstraintTarget(Index id, const Vec3& target) {
   constraints_.setTarget(id, target);
 }
 
+void Simulation::moveConstraint(Index id, Index vertex, const Vec3& target) {
+  constraints_.movePosition(model_.mesh, id, vertex, target);
+}
+
 void Simulation::setConstraintNormal(Index id, const Vec3& normal) {
   constraints_.setNormal(id, normal);
 }

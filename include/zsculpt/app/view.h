@@ -33,6 +33,8 @@ int affordableLevels(const Mesh& mesh, int wanted, Index maxRefinedVertices = 40
 
 /// Applies a scene's camera settings over `camera` (absent values keep it).
 void applyCameraSettings(const io::CameraSettings& settings, render::Camera& camera);
+/// The camera as a scene stores it (every field given): what "save scene" writes.
+io::CameraSettings cameraSettingsOf(const render::Camera& camera);
 
 class FrameBuilder {
  public:

@@ -75,6 +75,11 @@ class ConstraintSet {
   Index addNormal(const Mesh& mesh, const Points& position, Index vertex, const Vec3& normal);
   /// Moves a position constraint's target (the drag tool calls this every frame).
   void setTarget(Index id, const Vec3& target);
+  /// The position constraint `id` holds `vertex` at `target` from now on (a drag moved to
+  /// another vertex): same id, same place in the list. All or nothing: throws
+  /// InvalidInputError (no such vertex, a vertex another position constraint holds, a pin
+  /// that would contradict a normal constraint) with the constraint as it was.
+  void movePosition(const Mesh& mesh, Index id, Index vertex, const Vec3& target);
   /// Changes a normal constraint's normal.
   void setNormal(Index id, const Vec3& normal);
   void remove(Index id);

@@ -131,6 +131,8 @@ class Simulation {
   Index addNormalConstraint(Index vertex, std::optional<Vec3> normal = std::nullopt);
   /// The drag tool: move a position constraint's target (takes effect at the next cycle).
   void setConstraintTarget(Index id, const Vec3& target);
+  /// The position constraint `id` holds `vertex` at `target` (ConstraintSet::movePosition).
+  void moveConstraint(Index id, Index vertex, const Vec3& target);
   void setConstraintNormal(Index id, const Vec3& normal);
   void removeConstraint(Index id);
   void clearConstraints();
