@@ -131,6 +131,17 @@ void ConstraintSet::checkNormalAgainstPins(const Mesh& mesh, Index vertex,
                             "its neighbours, which fix another plane");
 }
 
+void ConstraintSet::checkNormalsAroundPin(const Mesh& mesh, Index vertex) const {
+  // A pin at `vertex` may complete the pinning of a constrained normal's one-ring.
+  std::vector<Index> fit;
+  for (const Constraint& c : items_) {
+    if (c.kind != ConstraintKind::Normal) continue;
+    normalFitVertices(mesh, c.vertex, fit);
+    if (std::find(fit.begin(), fit.end(), vertex) != fit.end())
+      checkNormalAgainstPins(mesh, c.vertex, c.value);
+  }
+}
+
 Index ConstraintSet::addPosition(const Mesh& mesh, Index vertex, const Vec3& target) {
   checkVertex(mesh, ConstraintKind::Position, vertex);
   const std::string what = describeConstraint(ConstraintKind::Position, vertex);
@@ -146,14 +157,7 @@ Index ConstraintSet::addPosition(const Mesh& mesh, Index vertex, const Vec3& tar
   }
   items_.push_back(Constraint{nextId_, ConstraintKind::Position, vertex, target});
   try {
-    // The new pin may complete the pinning of a constrained normal's one-ring.
-    std::vector<Index> fit;
-    for (const Constraint& c : items_) {
-      if (c.kind != ConstraintKind::Normal) continue;
-      normalFitVertices(mesh, c.vertex, fit);
-      if (std::find(fit.begin(), fit.end(), vertex) != fit.end())
-        checkNormalAgainstPins(mesh, c.vertex, c.value);
-    }
+    checkNormalsAroundPin(mesh, vertex);
   } catch (const InvalidInputError&) {
     items_.pop_back();
     throw;
@@ -231,15 +235,7 @@ void ConstraintSet::movePosition(const Mesh& mesh, Index id, Index vertex, const
   items_[at].vertex = vertex;
   items_[at].value = target;
   try {
-    // As addPosition: the pin in its new place may complete a constrained normal's ring (and
-    // no longer counts where it was).
-    std::vector<Index> fit;
-    for (const Constraint& c : items_) {
-      if (c.kind != ConstraintKind::Normal) continue;
-      normalFitVertices(mesh, c.vertex, fit);
-      if (std::find(fit.begin(), fit.end(), vertex) != fit.end())
-        checkNormalAgainstPins(mesh, c.vertex, c.value);
-    }
+    checkNormalsAroundPin(mesh, vertex);  // where it was, it no longer counts
   } catch (const InvalidInputError&) {
     items_[at] = before;
     throw;

@@ -101,6 +101,8 @@ class ConstraintSet {
  private:
   [[nodiscard]] std::size_t indexOf(Index id) const;
   void checkNormalAgainstPins(const Mesh& mesh, Index vertex, const Vec3& normal) const;
+  // checkNormalAgainstPins for every normal constraint whose ring holds `vertex`.
+  void checkNormalsAroundPin(const Mesh& mesh, Index vertex) const;
 
   std::vector<Constraint> items_;
   Index nextId_ = 0;
