@@ -16,6 +16,12 @@ std::string describeConstraint(ConstraintKind kind, Index vertex) {
 
 namespace {
 
+// v / |v|: the plain quotient where |v|^2 is a normal number (the same bits as before), the
+// scaled one where it would overflow or underflow (components of 1e200 made the zero vector).
+Vec3 unitVector(const Vec3& v) {
+  return std::isnormal(v.squaredNorm()) ? Vec3(v.normalized()) : Vec3(v.stableNormalized());
+}
+
 Eigen::SelfAdjointEigenSolver<Mat3> principalDirections(std::span<const Vec3> points) {
   Vec3 mean = Vec3::Zero();
   for (const Vec3& p : points) mean += p;
@@ -194,7 +200,7 @@ Index ConstraintSet::addNormal(const Mesh& mesh, const Points& position, Index v
             << "(flatness " << flatness << " > " << kMaxPlaneFlatness << "), so no normal to hold";
     throw InvalidInputError(message.str());
   }
-  const Vec3 unit = normal.stableNormalized();
+  const Vec3 unit = unitVector(normal);
   if (const auto existing = find(ConstraintKind::Normal, vertex)) {
     if (get(*existing).value.dot(unit) < std::cos(1e-9))
       throw InvalidInputError(what + ": given twice with different normals " +
@@ -250,7 +256,7 @@ void ConstraintSet::setNormal(Index id, const Vec3& normal) {
   if (!normal.allFinite() || !(normal.stableNorm() > 0.0))
     throw InvalidInputError(describeConstraint(c.kind, c.vertex) +
                             ": the normal must be a finite, non-zero vector");
-  c.value = normal.stableNormalized();
+  c.value = unitVector(normal);
 }
 
 void ConstraintSet::remove(Index id) {
