@@ -337,6 +337,14 @@ TEST_F(Cli, OutputsAreCheckedBeforeTheWorkAndLinksAndDevicesSurvive) {
             0);
   const std::string log = slurp(path("log.txt"));
   EXPECT_EQ(log.rfind("HEADER\nx,y,z,vx,vy,vz\n", 0), 0u) << log;
+  // Another name of the same file (a link to /dev/stdout, /dev/./stdout) is the same.
+  std::ofstream(path("log2.txt")) << "HEADER\n";
+  ASSERT_EQ(std::system((std::string(ZSCULPT_BINARY) +
+                         " simulate builtin:dodecahedron --steps 2 --state-out /dev/./stdout >> " +
+                         path("log2.txt"))
+                            .c_str()),
+            0);
+  EXPECT_EQ(slurp(path("log2.txt")).rfind("HEADER\nx,y,z,vx,vy,vz\n", 0), 0u);
   // A pipe nobody reads is an error, not a hang after the work.
   ASSERT_EQ(::mkfifo(path("pipe").c_str(), 0600), 0);
   expectOneLineError(run("simulate builtin:dodecahedron --steps 2 --state-out " + path("pipe")), 2,

@@ -1043,6 +1043,13 @@ TEST_F(SceneFile, RelativeMeshPathsFollowTheSceneFile) {
   saveScene(scene, path("link/u.json"));
   for (const char* name : {"link/u.json", "real/a/b/u.json"})
     EXPECT_EQ(loadMeshSource(loadScene(path(name)).mesh).numEdges(), 3) << name;
+  // The mesh's own links are kept: a "current" link pointed at another mesh later is still
+  // followed by the saved scene.
+  fs::create_symlink("../curve.obj", path("real/current.obj"));
+  writeText(path("real/s.json"), R"({"mesh": "current.obj"})");
+  saveScene(loadScene(path("real/s.json")), path("real/saved.json"));
+  EXPECT_NE(readText(path("real/saved.json")).find("\"current.obj\""), std::string::npos)
+      << readText(path("real/saved.json"));
 }
 
 TEST_F(SceneFile, SaveAndLoadRoundTrip) {

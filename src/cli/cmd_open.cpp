@@ -53,10 +53,15 @@ app::SessionSetup makeSetup(const OpenOptions& o) {
   // Whatever the flags did to the model is now in the scene, as values or full arrays.
   io::recordProperties(scene, loaded.model);
   // A scene's own step above the stable limit (the window allows one, in red, and saves
-  // it) opens with a warning: refused, the saved session could not be opened again. A flag
-  // asking for one is still refused without --allow-unstable.
+  // it) opens with a warning: refused, the saved session could not be opened again. A step
+  // that flags ask for or make unstable (--dt, --stiffness ...) is still refused without
+  // --allow-unstable.
   RunOptions run = o.run;
-  if (!run.dt && !run.dtRatio) run.allowUnstable = true;
+  const ModelOptions& m = o.model;
+  const bool sceneAsSaved = !m.mass && !m.damping && !m.stiffness && !m.angularStiffness &&
+                            !m.rigidity && !m.stiffnessCap && !m.restLengthScale &&
+                            m.gravity.empty();
+  if (!run.dt && !run.dtRatio && sceneAsSaved) run.allowUnstable = true;
   const RunOptions::Resolved resolved = run.resolve(loaded);
   if (!resolved.aboveStableLimit.empty() && !o.run.allowUnstable)
     std::cerr << "zsculpt: warning: " << resolved.aboveStableLimit

@@ -1,6 +1,7 @@
 #include "zsculpt/io/atomic_file.h"
 
 #include <fcntl.h>
+#include <poll.h>
 #include <sys/stat.h>
 #include <unistd.h>
 
@@ -59,6 +60,11 @@ class FdOutBuf : public std::streambuf {
       const ssize_t written = ::write(fd_, p, static_cast<size_t>(pptr() - p));
       if (written < 0) {
         if (errno == EINTR) continue;
+        if (errno == EAGAIN || errno == EWOULDBLOCK) {
+          // A descriptor inherited non-blocking (a caller's stdout): wait until it takes more.
+          pollfd wait{fd_, POLLOUT, 0};
+          if (::poll(&wait, 1, -1) >= 0 || errno == EINTR) continue;
+        }
         error_ = errno;
         return false;
       }
@@ -150,6 +156,15 @@ struct Target {
 int namedDescriptor(const std::string& path) {
   if (path == "/dev/stdout") return 1;
   if (path == "/dev/stderr") return 2;
+  // Any other name of the same file as standard output or error (/dev/./stdout,
+  // /proc/thread-self/fd/1, a link to /dev/stdout, the very file `>> log` appends to).
+  struct stat named {};
+  if (::stat(path.c_str(), &named) == 0)
+    for (int fd : {1, 2}) {
+      struct stat open {};
+      if (::fstat(fd, &open) == 0 && open.st_dev == named.st_dev && open.st_ino == named.st_ino)
+        return fd;
+    }
   for (const char* prefix : {"/dev/fd/", "/proc/self/fd/"}) {
     const std::string_view p(prefix);
     if (path.size() <= p.size() || path.compare(0, p.size(), p) != 0) continue;
@@ -188,8 +203,12 @@ void writeInPlace(const std::string& path, const std::function<void(std::ostream
     // Non-blocking to open: a pipe nobody reads is an error (ENXIO), not a hang after all the
     // work; then blocking again for the writes.
     fd = ::open(path.c_str(), O_WRONLY | O_CLOEXEC | O_NOCTTY | O_NONBLOCK);
-    if (fd < 0)
-      fail(path, errno == ENXIO ? std::string("no process reads the pipe") : errnoText(errno));
+    if (fd < 0) {
+      const int error = errno;
+      std::error_code ec;
+      fail(path, error == ENXIO && fs::is_fifo(path, ec) ? std::string("no process reads the pipe")
+                                                         : errnoText(error));
+    }
     const int flags = ::fcntl(fd, F_GETFL);
     if (flags >= 0) ::fcntl(fd, F_SETFL, flags & ~O_NONBLOCK);
   }

@@ -788,12 +788,12 @@ OrderedJson overrideJson(const PropertyOverride& o) {
 
 std::string meshForFile(const std::string& mesh, const std::string& sceneFile) {
   if (mesh.empty() || isBuiltinName(mesh)) return mesh;
-  // Both through symbolic links (weakly_canonical), so that the relative path leads from
-  // the folder the scene file really is in: by the text of the paths, a scene saved into a
-  // folder reached through a link named the mesh by a path that only worked through it.
+  // From the folder the scene file really is in (through symbolic links: by the text of its
+  // path, a scene saved into a folder reached through a link named the mesh by a path that
+  // only worked through the link), to the mesh as named (its own links kept: a "current"
+  // link is still followed when it is pointed at another mesh).
   std::error_code ec;
-  fs::path absoluteMesh = fs::weakly_canonical(mesh, ec);
-  if (ec) absoluteMesh = fs::absolute(mesh, ec).lexically_normal();
+  const fs::path absoluteMesh = fs::absolute(mesh, ec).lexically_normal();
   fs::path folder = fs::path(sceneFile).parent_path();
   if (folder.empty()) folder = ".";
   fs::path absoluteFolder = fs::weakly_canonical(folder, ec);
