@@ -715,8 +715,12 @@ TEST(Soak, TorusTwoAtNinetyFivePercentOfTMaxUnderAStormOfLoadsPinsDragsAndEdits)
     EXPECT_GT(log.drags, 0);
     EXPECT_GT(log.edits, 0);
   }
-  // Without damping, E(t) = E0 + W(t) up to the scheme's own energy error, which does not
-  // grow (damping only lowers E): allow 1 % of the energy that has flowed in and out, plus
+  // Without damping, E(t) = E0 + W(t) up to the scheme's own energy error. What is asserted
+  // is the side a blow-up takes: no energy created beyond it. The other side is printed, not
+  // asserted: split cycles lose energy (each change of the step moves the state to another
+  // modified energy; 4000 cycles here end 0.166 J, 13 % of the work, below E0 + W, and the
+  // 200,000-cycle run 0.64 J of 312 J: docs/reliability.md, docs/solver.md section 5).
+  // Allowed above it: 1 % of the energy that has flowed in and out, plus
   // what the constraint solver's position tolerance (1e-12 of the model's size, 1e-11 m
   // here) may leave in the springs of a model at rest: kappa (1e-11 m)^2 / 2 over Torus-II's
   // 3200 springs is 1.5e-18 J (storms of pins or edits alone on a model at rest stay below
