@@ -256,31 +256,29 @@ TEST_F(Cli, BadInputGetsOneLineAndExitTwoAndNoOutputFile) {
 TEST_F(Cli, ValuesAreReadAsWrittenOrRefused) {
   // Each of these once ran: NaN and infinite steps replaced by a default, octal and hex
   // counts, a count beyond its type saturated, empty values ignored, a trailing separator,
-  // 100000 threads (a crash), a time whose step count overflowed (blamed on --steps).
-  expectOneLineError(run("simulate builtin:dodecahedron --dt nan"), 2, "--dt");
-  expectOneLineError(run("simulate builtin:dodecahedron --dt inf"), 2, "--dt");
-  expectOneLineError(run("simulate builtin:dodecahedron --dt-ratio 1e400"), 2, "--dt-ratio");
-  expectOneLineError(run("render builtin:dodecahedron --dt nan --out " + path("f")), 2, "--dt");
-  expectOneLineError(run("simulate builtin:dodecahedron --time 1e30"), 2, "--time");
-  expectOneLineError(run("simulate builtin:dodecahedron --mass 100 --dt-ratio 1e308"), 2,
-                     "--dt-ratio");
-  expectOneLineError(run("simulate builtin:dodecahedron --steps 0x10"), 2, "--steps");
-  expectOneLineError(run("simulate builtin:dodecahedron --steps 99999999999999999999"), 2,
-                     "--steps");
-  expectOneLineError(run("simulate builtin:dodecahedron --mass ''"), 2, "--mass");
-  expectOneLineError(run("simulate builtin:dodecahedron --state-out ''"), 2, "--state-out");
-  expectOneLineError(run("simulate builtin:dodecahedron --force 0:1,2,3,"), 2, "--force");
-  expectOneLineError(run("simulate builtin:dodecahedron --force 0:1,2,3:"), 2, "--force");
-  // As a scene's loads, so that a session opened with them saves a scene that opens again.
-  expectOneLineError(run("simulate builtin:dodecahedron --force 3:0,0,1:1:1"), 2,
-                     "T1 must be after T0");
-  expectOneLineError(run("simulate builtin:dodecahedron --force 3:0,0,1:-1:2"), 2,
-                     "T0 must be >= 0");
-  expectOneLineError(run("bench builtin:dodecahedron --steps 3 --threads 100000"), 2, "--threads");
-  expectOneLineError(run("bench builtin:dodecahedron --steps 3 --dt-ratio nan"), 2, "--dt-ratio");
-  // A state "file" without line breaks is refused at once (it read 1.1 GB of zeros first).
-  expectOneLineError(run("simulate builtin:dodecahedron --state-in /dev/zero"), 2,
-                     "longer than 4096 characters");
+  // loads a scene would refuse (a session opened with them saved a scene that did not open
+  // again), 100000 threads (a crash), a time whose step count overflowed (blamed on
+  // --steps), a state "file" without line breaks (read 1.1 GB deep).
+  const std::vector<std::pair<std::string, std::string>> refused = {
+      {"simulate builtin:dodecahedron --dt nan", "--dt"},
+      {"simulate builtin:dodecahedron --dt inf", "--dt"},
+      {"simulate builtin:dodecahedron --dt-ratio 1e400", "--dt-ratio"},
+      {"render builtin:dodecahedron --dt nan --out " + path("f"), "--dt"},
+      {"simulate builtin:dodecahedron --time 1e30", "--time"},
+      {"simulate builtin:dodecahedron --mass 100 --dt-ratio 1e308", "--dt-ratio"},
+      {"simulate builtin:dodecahedron --steps 0x10", "--steps"},
+      {"simulate builtin:dodecahedron --steps 99999999999999999999", "--steps"},
+      {"simulate builtin:dodecahedron --mass ''", "--mass"},
+      {"simulate builtin:dodecahedron --state-out ''", "--state-out"},
+      {"simulate builtin:dodecahedron --force 0:1,2,3,", "--force"},
+      {"simulate builtin:dodecahedron --force 0:1,2,3:", "--force"},
+      {"simulate builtin:dodecahedron --force 3:0,0,1:1:1", "T1 must be after T0"},
+      {"simulate builtin:dodecahedron --force 3:0,0,1:-1:2", "T0 must be >= 0"},
+      {"bench builtin:dodecahedron --steps 3 --threads 100000", "--threads"},
+      {"bench builtin:dodecahedron --steps 3 --dt-ratio nan", "--dt-ratio"},
+      {"simulate builtin:dodecahedron --state-in /dev/zero", "longer than 4096 characters"},
+  };
+  for (const auto& [args, fragment] : refused) expectOneLineError(run(args), 2, fragment);
   const Result decimal = run("simulate builtin:dodecahedron --steps 010 --json");
   EXPECT_EQ(decimal.status, 0) << decimal.err;
   EXPECT_NE(decimal.out.find("\"steps\": 10,"), std::string::npos) << decimal.out;
