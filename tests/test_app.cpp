@@ -613,6 +613,35 @@ TEST(SolverThread, CommandStormWhileReadingSnapshots) {
   EXPECT_TRUE(solver.sessionWhenStopped().state().position.allFinite());
 }
 
+TEST(SolverThread, JobsRunBetweenTheCommandsQueuedAroundThem) {
+  // A save queued between a paint and its undo saves the paint (jobs ran after every
+  // command of the frame, and the save missed it).
+  auto session = std::make_unique<Session>(gridSetup(6));
+  SolverThreadOptions options;
+  options.realTime = false;
+  SolverThread solver(std::move(session), options);
+  editing::Brush b;
+  b.property = Property::Stiffness;
+  b.value = 20.0;
+  b.radius = 1.5;
+  double seen = 0.0;
+  solver.push(Edit{editing::Dab{b, editing::BrushCentre::atVertex(14)}});
+  solver.runOnSolver([&seen](Session& s) {
+    seen = s.model().properties.stiffness[14];
+    return std::string();
+  });
+  solver.push(Edit{editing::Undo{}});
+  solver.start();
+  const auto deadline = std::chrono::steady_clock::now() + std::chrono::seconds(30);
+  while (solver.latest().commandsApplied < 2) {
+    ASSERT_LT(std::chrono::steady_clock::now(), deadline);
+    std::this_thread::sleep_for(std::chrono::milliseconds(2));
+  }
+  solver.stop();
+  EXPECT_DOUBLE_EQ(seen, 20.0);
+  EXPECT_DOUBLE_EQ(solver.sessionWhenStopped().model().properties.stiffness[14], 5.0);
+}
+
 TEST(SolverThread, RealTimeModeStepsAndStops) {
   auto session = std::make_unique<Session>(gridSetup(6));
   SolverThreadOptions options;

@@ -262,6 +262,7 @@ int Window::run() {
   stopSession();
   if (scripted_ && !options_.screenshotDir.empty()) {
     const fs::path log = fs::path(options_.screenshotDir) / "script_log.json";
+    io::ensureWritableDirectory(options_.screenshotDir);
     io::writeFileAtomically(log.string(), [&](std::ostream& out) { out << scriptLog_.dump(2) << "\n"; });
   }
   return 0;
@@ -873,6 +874,8 @@ void Window::stepScript() {
         }
       } else if (action == "probe") {
         const Index v = j.at("vertex").get<Index>();
+        if (v < 0 || v >= s.position.rows())
+          throw InvalidInputError("probe " + std::to_string(v) + ": no such vertex");
         const auto px = projectToPixel(camera_, viewWidth_, viewHeight_, s.position.row(v).transpose());
         if (px)
           scriptLog_.push_back({{"frame", scriptFrame_}, {"probe", j.value("name", std::string())},
@@ -883,7 +886,10 @@ void Window::stepScript() {
         // Relative paths are relative to the screenshot folder, so a script's outputs stay
         // together.
         fs::path path = j.at("path").get<std::string>();
-        if (path.is_relative() && !options_.screenshotDir.empty()) path = fs::path(options_.screenshotDir) / path;
+        if (path.is_relative() && !options_.screenshotDir.empty()) {
+          io::ensureWritableDirectory(options_.screenshotDir);  // made as a screenshot makes it
+          path = fs::path(options_.screenshotDir) / path;
+        }
         if (action == "save_scene")
           saveScene(path.string(), false);
         else

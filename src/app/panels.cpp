@@ -113,6 +113,24 @@ void Window::simulationPanel(const Snapshot& s) {
   if (ImGui::Button("Reset")) push(Reset{});
   help("Back to the initial state; painted properties stay (undo them with Ctrl+Z).");
 
+  if (s.scheme != seenScheme_ || s.period != seenPeriod_) {
+    seenScheme_ = s.scheme;
+    seenPeriod_ = s.period;
+    schemeIndex_ = static_cast<int>(s.scheme);
+    if (std::isfinite(s.tMax) && s.tMax > 0.0) dtRatio_ = static_cast<float>(s.period / s.tMax);
+  }
+  if (s.gravity != seenGravity_) {
+    seenGravity_ = s.gravity;
+    gravityOn_ = !s.gravity.isZero();
+    if (gravityOn_)
+      gravity_ = {static_cast<float>(s.gravity.x()), static_cast<float>(s.gravity.y()),
+                  static_cast<float>(s.gravity.z())};
+  }
+  if (s.stiffnessCap != seenCap_) {
+    seenCap_ = s.stiffnessCap;
+    capOn_ = std::isfinite(s.stiffnessCap);
+    if (capOn_) cap_ = static_cast<float>(s.stiffnessCap);
+  }
   ImGui::Combo("scheme", &schemeIndex_, kSchemes, IM_ARRAYSIZE(kSchemes));
   ImGui::SliderFloat("T / T_max", &dtRatio_, 0.05f, 1.5f, "%.3f");
   help("The time step as a fraction of equation 5's critical period T_max. Above the "

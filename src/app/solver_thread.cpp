@@ -85,7 +85,7 @@ void SolverThread::postMessage(std::string message) {
 void SolverThread::runOnSolver(std::function<std::string(Session&)> job) {
   {
     std::lock_guard lock(queueMutex_);
-    jobs_.push_back(std::move(job));
+    jobs_.push_back(Job{pending_.size(), std::move(job)});
   }
   wake_.notify_all();
 }
@@ -140,14 +140,17 @@ void SolverThread::applyPending() {
     }
     applyOne(next);
   }
-  for (const Command& c : draining_) applyOne(c);
-  for (auto& job : runningJobs_) {
+  // The commands and the jobs in the order they were queued.
+  size_t next = 0;
+  for (Job& job : runningJobs_) {
+    for (; next < job.after && next < draining_.size(); ++next) applyOne(draining_[next]);
     try {
-      postMessage(job(*session_));
+      postMessage(job.run(*session_));
     } catch (const std::exception& e) {
       postMessage(e.what());
     }
   }
+  for (; next < draining_.size(); ++next) applyOne(draining_[next]);
 }
 
 void SolverThread::loop() {

@@ -4,6 +4,7 @@
 
 #include <array>
 #include <deque>
+#include <limits>
 #include <memory>
 #include <nlohmann/json.hpp>
 #include <optional>
@@ -170,6 +171,13 @@ class Window {
   bool capOn_ = false;
   float cap_ = 50.0f;
   float damping_ = 0.0f;
+  // What the panel last saw applied (scheme, period, gravity, cap): a change from elsewhere
+  // (a script, a replayed command, a paint that lowered T_max) is shown, so that Apply never
+  // sends back a stale choice.
+  Scheme seenScheme_ = Scheme::Default;
+  double seenPeriod_ = -1.0;
+  Vec3 seenGravity_ = Vec3::Constant(std::numeric_limits<double>::quiet_NaN());
+  double seenCap_ = -1.0;
   std::string pathField_;
   std::string sceneField_;
   std::string meshField_;

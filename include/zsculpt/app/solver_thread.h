@@ -109,7 +109,13 @@ class SolverThread {
   std::vector<Command> pending_, draining_;
   std::vector<ScheduledCommand> scheduled_;
   std::size_t nextScheduled_ = 0;
-  std::vector<std::function<std::string(Session&)>> jobs_, runningJobs_;
+  // Each job with the number of commands queued before it: it runs after those and before
+  // the ones queued after it (a save between a paint and an undo saves the paint).
+  struct Job {
+    size_t after = 0;
+    std::function<std::string(Session&)> run;
+  };
+  std::vector<Job> jobs_, runningJobs_;
   bool stopRequested_ = false;
 
   std::mutex messageMutex_;
