@@ -658,6 +658,12 @@ namespace {
 
 // The corners of a 7 x 7 grid, pinned where they are; its centre is vertex 24.
 constexpr Index kSheetCentre = 24;
+// The 7 x 7 sheet with angle springs and damping whose settled centre the normal tests
+// turn.
+Model dampedBracedSheet() {
+  return makeModel(makeGrid(7), ModelSpec{.angular = 0.5, .damping = 0.5});
+}
+
 void pinCorners(Simulation& sim) {
   for (Index corner : {0, 6, 42, 48}) sim.addPositionConstraint(corner);
 }
@@ -708,10 +714,7 @@ TEST(Damping, MomentumDecaysAtTheDampingRate) {
 }
 
 TEST(Constraints, NormalConstraintHoldsOnceSettled) {
-  ModelSpec spec;
-  spec.damping = 0.5;
-  spec.angular = 0.5;
-  const Model model = makeModel(makeGrid(7), spec);
+  const Model model = dampedBracedSheet();
   Simulation sim(model, settingsFor(model, 0.5));
   pinCorners(sim);
   const Index centre = kSheetCentre;
@@ -837,10 +840,7 @@ TEST(Constraints, AFarNormalTargetIsTurnedToAtTheTurnRate) {
   // A target a radian from the normal is not taken in one cycle, which would take forces
   // that grow as 1 / T^2 (the split cycles of fast motion made them 1e5 N and more), but
   // turned to at kTurnRate radians per T_ring, each cycle meeting its goal.
-  ModelSpec spec;
-  spec.damping = 0.5;
-  spec.angular = 0.5;
-  const Model model = makeModel(makeGrid(7), spec);
+  const Model model = dampedBracedSheet();
   Simulation sim(model, settingsFor(model, 0.5));
   pinCorners(sim);
   const Index centre = kSheetCentre;

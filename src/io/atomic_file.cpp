@@ -10,7 +10,6 @@
 #include <charconv>
 #include <cstring>
 #include <filesystem>
-#include <fstream>
 #include <random>
 #include <streambuf>
 #include <string_view>
@@ -264,22 +263,14 @@ void writeFileAtomically(const std::string& requested,
 void writeFileAtomicallyVia(const std::string& requested,
                             const std::function<void(const std::string&)>& writeTo) {
   const Target target = resolveTarget(requested);
+  // A library writes to a name of its own choosing; a device or pipe has no such name.
+  if (target.inPlace) fail(requested, "not a file: a device or pipe cannot take this output");
   const std::string& path = target.path;
   std::string temporary;
-  // Created (and so reserved) before the library opens it by name; for a device, in the
-  // system's temporary folder (the device's own, /dev, is not for files), then copied in.
-  const fs::path beside =
-      target.inPlace ? fs::temp_directory_path() / fs::path(path).filename() : fs::path(path);
-  ::close(createTemporary(beside.string(), temporary));
+  // Created (and so reserved) before the library opens it by name.
+  ::close(createTemporary(path, temporary));
   try {
     writeTo(temporary);
-    if (target.inPlace) {
-      std::ifstream in(temporary, std::ios::binary);
-      if (!in) fail(path, "the written file is gone");
-      writeInPlace(path, [&](std::ostream& out) { out << in.rdbuf(); });
-      ::unlink(temporary.c_str());
-      return;
-    }
     syncFile(path, temporary);
     commit(path, temporary);
   } catch (...) {
@@ -292,9 +283,9 @@ void checkOutputFile(const std::string& path) {
   const Target target = resolveTarget(path);
   if (target.inPlace) {
     const int fd = namedDescriptor(path);
-    const bool writable =
-        fd >= 0 ? (::fcntl(fd, F_GETFL) >= 0 && (::fcntl(fd, F_GETFL) & O_ACCMODE) != O_RDONLY)
-                : ::access(target.path.c_str(), W_OK) == 0;
+    const int flags = fd >= 0 ? ::fcntl(fd, F_GETFL) : 0;
+    const bool writable = fd >= 0 ? flags >= 0 && (flags & O_ACCMODE) != O_RDONLY
+                                  : ::access(target.path.c_str(), W_OK) == 0;
     if (!writable) fail(path, "not writable");
     return;
   }

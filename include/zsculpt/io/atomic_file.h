@@ -17,7 +17,10 @@ namespace zsculpt::io {
 void writeFileAtomically(const std::string& path, const std::function<void(std::ostream&)>& write);
 
 /// Same for a file produced by a library that writes to a path itself (assimp, stb):
-/// `writeTo` receives the temporary path to write.
+/// `writeTo` receives the temporary path to write. A device or pipe is refused (the library
+/// writes to a file by name).
+/// (No program path uses it now: meshes and images are made in memory and written through
+/// writeFileAtomically; it stays for libraries that can only write by name.)
 void writeFileAtomicallyVia(const std::string& path,
                             const std::function<void(const std::string& temporaryPath)>& writeTo);
 
