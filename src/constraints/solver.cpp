@@ -286,6 +286,7 @@ void ConstraintSolver::beginStep(const Mesh& mesh, const ConstraintSet& constrai
     points_.clear();
     for (Index l : plane.locals) points_.push_back(supportEnd_.row(l).transpose());
     plane.held = current.squaredNorm() > 0.0 && planeFlatness(points_) <= kMaxPlaneFlatness;
+    plane.yielded = false;
     if (!plane.held) {
       plane.turn.lastOff = -1.0;  // the way back from a fold is not lost (kTurnBudget)
       for (auto& g : plane.gradient) g.setZero();
@@ -336,6 +337,61 @@ void ConstraintSolver::beginStep(const Mesh& mesh, const ConstraintSet& constrai
     normalGradient(plane, supportEnd_, plane.gradient);
   }
   // Warm start: last cycle's unknowns, with this cycle's gradients.
+  assembleForces();
+}
+
+int ConstraintSolver::yieldPlanes() {
+  int yielded = 0;
+  for (size_t q = 0; q < planes_.size(); ++q) {
+    Plane& plane = planes_[q];
+    if (!plane.held) continue;
+    plane.held = false;
+    plane.yielded = true;
+    plane.turn.lastOff = -1.0;
+    for (auto& g : plane.gradient) g.setZero();
+    lambda_[q].setZero();
+    ++yielded;
+  }
+  assembleForces();
+  return yielded;
+}
+
+int ConstraintSolver::heldPlanes() const {
+  return static_cast<int>(
+      std::count_if(planes_.begin(), planes_.end(), [](const Plane& p) { return p.held; }));
+}
+
+double ConstraintSolver::misfit(const ConstraintSet& constraints, const Points& endPosition) {
+  gatherSupport(endPosition, supportEnd_);
+  double worst = 0.0;
+  for (const Pin& pin : pins_)
+    worst = std::max(
+        worst, (supportEnd_.row(pin.local).transpose() - constraints.get(pin.id).value).norm());
+  Vec3 rotation;
+  for (const Plane& plane : planes_)
+    if (plane.held || plane.yielded)
+      worst = std::max(worst, plane.radius * planeResidual(plane, supportEnd_, rotation));
+  return worst;
+}
+
+void ConstraintSolver::save() {
+  savedUnknowns_.resize(static_cast<Index>(3 * pins_.size() + 2 * planes_.size()));
+  unknowns(savedUnknowns_);
+  savedHeld_.resize(planes_.size());
+  savedGradient_.resize(planes_.size());
+  for (size_t q = 0; q < planes_.size(); ++q) {
+    savedHeld_[q] = planes_[q].held ? 1 : 0;
+    savedGradient_[q] = planes_[q].gradient;
+  }
+}
+
+void ConstraintSolver::restore() {
+  for (size_t q = 0; q < planes_.size(); ++q) {
+    planes_[q].held = savedHeld_[q] != 0;
+    planes_[q].yielded = false;
+    planes_[q].gradient = savedGradient_[q];
+  }
+  setUnknowns(savedUnknowns_);
   assembleForces();
 }
 
@@ -494,7 +550,7 @@ void ConstraintSolver::setUnknowns(const VectorX& x) {
   }
 }
 
-void ConstraintSolver::solve(const ConstraintSet& constraints, const StepResponse& response,
+bool ConstraintSolver::solve(const ConstraintSet& constraints, const StepResponse& response,
                              double positionTolerance, double normalTolerance) {
   // Damped Newton on all unknowns at once (pin forces and plane weights), with the Jacobian
   // of the response model by forward differences: the elastic part is affine, so its
@@ -503,7 +559,13 @@ void ConstraintSolver::solve(const ConstraintSet& constraints, const StepRespons
   // minimum norm leaves unreachable directions alone instead of letting their forces grow.
   constexpr int kIterations = 20;
   const Index n = static_cast<Index>(3 * pins_.size() + 2 * planes_.size());
-  if (n == 0) return;
+  if (n == 0) return false;
+  initial_.resize(n);
+  unknowns(initial_);
+  auto changed = [&] {
+    unknowns(base_);
+    return base_ != initial_;
+  };
   double positionError = 0.0, normalError = 0.0;
   double cost = residual(constraints, response, rhs_, positionError, normalError);
   if (planes_.empty() && response.affine() && pins_.size() == support_.size()) {
@@ -534,7 +596,7 @@ void ConstraintSolver::solve(const ConstraintSet& constraints, const StepRespons
       positionError = p;
     }
     assembleForces();
-    return;
+    return changed();
   }
   for (int iteration = 0; iteration < kIterations; ++iteration) {
     if (positionError <= positionTolerance && normalError <= normalTolerance) break;
@@ -580,6 +642,7 @@ void ConstraintSolver::solve(const ConstraintSet& constraints, const StepRespons
     }
   }
   assembleForces();
+  return changed();
 }
 
 void ConstraintSolver::velocityCorrection(double period, const Points& startPosition,

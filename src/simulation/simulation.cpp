@@ -653,6 +653,7 @@ void Simulation::coupledStep() {
     supportChi_.assign(static_cast<size_t>(s), 0.0);
     warnedUnmet_ = false;
     warnedReleased_ = false;
+    warnedYielded_ = false;
   }
   if (constrained && !responseValid_) {
     response_.buildElastic(*stepper_, model_, stepperShare(), solver_.support());
@@ -701,20 +702,53 @@ void Simulation::coupledStep() {
       response_.clearRigid();
     }
     const double positionTolerance = settings_.positionTolerance * scale_;
-    for (int k = 0;; ++k) {
-      const Points& virtualForce = solver_.forces();
-      for (size_t a = 0; a < support.size(); ++a)
-        constraintForce_.row(support[a]) = virtualForce.row(static_cast<Index>(a));
-      constraintForceZero_ = false;
-      runTrial(true, k == 0);
-      report_.steps = k + 1;
-      if (solver_.check(constraints_, trial_.position, positionTolerance,
-                        settings_.normalTolerance, report_))
-        break;
-      if (k + 1 >= settings_.constraintSteps) break;
+    // Trials of the step under the solver's forces until the constraints hold, at most
+    // constraintSteps of them, or until the solve leaves the forces as they were (the next
+    // trial would be the last one again); the first of all computes the step afresh.
+    int trials = 0;
+    auto solveByTrials = [&] {
+      for (int k = 0;; ++k) {
+        const Points& virtualForce = solver_.forces();
+        for (size_t a = 0; a < support.size(); ++a)
+          constraintForce_.row(support[a]) = virtualForce.row(static_cast<Index>(a));
+        constraintForceZero_ = false;
+        runTrial(true, trials == 0);
+        ++trials;
+        if (solver_.check(constraints_, trial_.position, positionTolerance,
+                          settings_.normalTolerance, report_))
+          break;
+        if (k + 1 >= settings_.constraintSteps) break;
+        response_.anchor(supportElastic_, elasticCentre_, solver_.forces());
+        if (!solver_.solve(constraints_, response_, positionTolerance, settings_.normalTolerance))
+          break;
+      }
+    };
+    solveByTrials();
+    // Positions first. Pins the joint solve with the normals left unmet are solved again
+    // without the normals (yieldPlanes), and that cycle is kept when it misfits less: the
+    // joint solve fails where large motion makes the response model poor, and a drag flung
+    // next to a held ring, left unmet cycle after cycle by more each time, blew the model up.
+    // Pins alone are affine in their forces, so that solve holds them.
+    if (report_.positionError > positionTolerance && solver_.heldPlanes() > 0) {
+      const double jointMisfit = solver_.misfit(constraints_, trial_.position);
+      const ConstraintReport joint = report_;
+      solver_.save();
+      report_.yielded = solver_.yieldPlanes();
       response_.anchor(supportElastic_, elasticCentre_, solver_.forces());
       solver_.solve(constraints_, response_, positionTolerance, settings_.normalTolerance);
+      solveByTrials();
+      if (!(solver_.misfit(constraints_, trial_.position) < jointMisfit)) {
+        // The joint cycle again (its last trial, the same bits).
+        solver_.restore();
+        report_ = joint;
+        const Points& virtualForce = solver_.forces();
+        for (size_t a = 0; a < support.size(); ++a)
+          constraintForce_.row(support[a]) = virtualForce.row(static_cast<Index>(a));
+        runTrial(true, false);
+        ++trials;
+      }
     }
+    report_.steps = trials;
     finishTrial();
     if (!solver_.releasedVertices().empty() && !warnedReleased_) {
       warnings_.push_back("normal constraint at vertex " +
@@ -730,6 +764,12 @@ void Simulation::coupledStep() {
                           std::to_string(stop.angle) +
                           " rad from its target: its ring lost pi rad of its way there as it "
                           "was turned; held where it is until its target is set to another value");
+    if (report_.yielded > 0 && !warnedYielded_) {
+      warnings_.push_back("normal constraints let go at t = " + std::to_string(state_.time) +
+                          " s: they and the pins could not both be met, and the pins hold; "
+                          "the normals hold again from the next cycle");
+      warnedYielded_ = true;
+    }
     if (!report_.converged && !warnedUnmet_) {
       warnings_.push_back("constraints not met at t = " + std::to_string(state_.time) +
                           " s (position error " + std::to_string(report_.positionError) +

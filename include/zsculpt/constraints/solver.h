@@ -23,6 +23,8 @@
 // together; with pins alone and no rigid motion the model is linear and one step with
 // C's pseudo-inverse, built with the response, solves it), and recomputes the step: one correction
 // makes the constraints hold to rounding for the exact-response schemes; the others take a few.
+// Positions come first: a cycle that leaves a pin unmet is solved again with the normals let
+// go (yieldPlanes), and the cycle that misfits less is kept (Simulation::coupledStep).
 // Velocities are then made consistent: a pinned vertex moves with its target, a constrained normal
 // does not move.
 
@@ -98,6 +100,7 @@ struct ConstraintReport {
   double positionError = 0.0;   // largest distance of a pinned vertex from its target
   double normalError = 0.0;     // largest angle (rad) of a held normal from its cycle's goal
   int released = 0;             // normal constraints let go this cycle (ConstraintSolver::held)
+  int yielded = 0;              // held normals let go to hold the pins (yieldPlanes)
   int turning = 0;              // held normals whose cycle goal falls short of their target
   int stopped = 0;              // held normals that stopped short of their target (kTurnBudget)
   double targetError = 0.0;     // largest angle (rad) of a held normal from its target
@@ -151,6 +154,22 @@ class ConstraintSolver {
   static constexpr double kTurnBudget = std::numbers::pi;
   /// The vertices of the normal constraints let go this cycle.
   [[nodiscard]] std::span<const Index> releasedVertices() const { return releasedVertices_; }
+  /// Lets go, for the rest of the cycle, every normal held in it, and returns how many: the
+  /// pins then have the virtual forces to themselves (the caller solves again). For a cycle
+  /// whose pins the joint solve left unmet (Simulation's positions-first rule): a normal that
+  /// cannot be held together with the pins yields to them, as a folded ring does (the way
+  /// back is not counted against kTurnBudget), and is held again from the next cycle.
+  int yieldPlanes();
+  /// Normal constraints held this cycle.
+  [[nodiscard]] int heldPlanes() const;
+  /// How far the constraints are from holding at `endPosition` (N x 3), in metres, as the
+  /// solve weighs them: the largest distance of a pinned vertex from its target and of
+  /// radius x angle of a plane held or yielded this cycle from its goal. It ranks a cycle's
+  /// joint solve against the one in which the normals yielded.
+  [[nodiscard]] double misfit(const ConstraintSet& constraints, const Points& endPosition);
+  /// Keeps the unknowns and which planes are held, to put them back with restore().
+  void save();
+  void restore();
   /// Forgets every normal's turning record (what it lost, whether it stopped): after the
   /// state was set or a cycle rolled back.
   void forgetTurning();
@@ -166,8 +185,9 @@ class ConstraintSolver {
   /// when every constraint holds within the tolerances.
   bool check(const ConstraintSet& constraints, const Points& endPosition, double positionTolerance,
              double normalTolerance, ConstraintReport& report);
-  /// Improves the forces against `response` (anchored at the last computed step).
-  void solve(const ConstraintSet& constraints, const StepResponse& response,
+  /// Improves the forces against `response` (anchored at the last computed step); false when
+  /// it left them as they were (no step reduced the residual).
+  bool solve(const ConstraintSet& constraints, const StepResponse& response,
              double positionTolerance, double normalTolerance);
   /// The part of forces() that hold the planes' normals (|S| x 3; zero net force on each
   /// plane): the gradient of the normal, times weights the solve finds.
@@ -207,6 +227,7 @@ class ConstraintSolver {
     Eigen::Matrix<double, 3, 2> across = Eigen::Matrix<double, 3, 2>::Zero();  // _|_ target
     Vec3 hint = Vec3::UnitZ();    // the oriented normal at the start of the step
     bool held = true;             // the ring defines its normal at the start of the step
+    bool yielded = false;         // held, then let go for the pins (yieldPlanes)
     Vec3 goal = Vec3::UnitZ();    // the normal at the end of the step: the target, or short of it
     TurnRecord turn;              // its constraint's, carried over set-ups
   };
@@ -242,10 +263,14 @@ class ConstraintSolver {
   void setUnknowns(const VectorX& x);
 
   Points pinError_, pinStep_;  // |S| x 3, for the pins-only solve
+  // save() / restore(): the unknowns, held flags and gradients.
+  VectorX savedUnknowns_;
+  std::vector<char> savedHeld_;
+  std::vector<std::vector<Eigen::Matrix<double, 3, 2>>> savedGradient_;
   Points planeMotion_;         // |S| x 3, for planesWithinReach
   Eigen::MatrixXd jacobian_;
   Eigen::CompleteOrthogonalDecomposition<Eigen::MatrixXd> factor_;
-  VectorX rhs_, step_, base_, trial_, shifted_;
+  VectorX rhs_, step_, base_, trial_, shifted_, initial_;
 };
 
 }  // namespace zsculpt

@@ -265,6 +265,7 @@ class Simulation {
   ConstraintReport report_;
   bool warnedUnmet_ = false;
   bool warnedReleased_ = false;
+  bool warnedYielded_ = false;
   std::vector<std::string> warnings_;
 
   ImpulseLedger ledger_;
