@@ -978,5 +978,37 @@ TEST(Window, ScriptedDragAndPaintUnderXvfb) {
   fs::remove_all(dir);
 }
 
+TEST(Window, APressOnABoundaryVertexTakesIt) {
+  // A corner's pixel straddles the surface's edge, so the ray through it can miss the
+  // surface: the drag tool took nothing there (both corners below stayed put) until a press
+  // off the surface took the vertex within a few pixels.
+  if (std::system("command -v xvfb-run > /dev/null 2>&1") != 0)
+    GTEST_SKIP() << "xvfb-run is not installed";
+  if (!fs::exists(ZSCULPT_BINARY)) GTEST_SKIP() << ZSCULPT_BINARY << " is not built";
+  const fs::path dir = tempDir("window_boundary");
+  const std::string command = std::string("xvfb-run -a -s \"-screen 0 1280x800x24\" ") +
+                              ZSCULPT_BINARY + " open builtin:grid --damping 0.05 --script " +
+                              ZSCULPT_TEST_DATA_DIR + "/app/boundary_pick.jsonl --screenshot-out " +
+                              dir.string() + " > " + (dir / "log.txt").string() + " 2>&1";
+  ASSERT_EQ(std::system(command.c_str()), 0) << readText(dir / "log.txt");
+  const nlohmann::json log = nlohmann::json::parse(readText(dir / "script_log.json"));
+  std::map<std::string, Vec3> probes;
+  for (const auto& entry : log) {
+    EXPECT_FALSE(entry.contains("error")) << entry.dump();
+    if (entry.contains("probe")) {
+      const auto& p = entry.at("position");
+      probes[entry.at("probe").get<std::string>()] =
+          Vec3(p[0].get<double>(), p[1].get<double>(), p[2].get<double>());
+    }
+  }
+  for (const char* corner : {"corner", "far_corner"}) {
+    const std::string name(corner);
+    ASSERT_TRUE(probes.count(name + "_start") && probes.count(name + "_held")) << name;
+    // The pointer went 60 pixels up the screen: the corner rose with it.
+    EXPECT_GT(probes[name + "_held"].z() - probes[name + "_start"].z(), 0.5) << name;
+  }
+  fs::remove_all(dir);
+}
+
 }  // namespace
 }  // namespace zsculpt::app

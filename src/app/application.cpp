@@ -584,19 +584,24 @@ std::optional<Pick> Window::pick(double x, double y) {
       if (refined_.rows() != stencil->numRefinedVertices()) refined_.resize(stencil->numRefinedVertices(), 3);
       stencil->apply(s.position, refined_);
       hit = pickSurface(stencil->refinedFaces(), refined_, ray);
-      if (!hit) return std::nullopt;
-      p.vertex = nearestVertex(s.position, hit->point);
+      if (hit) p.vertex = nearestVertex(s.position, hit->point);
     } else {
       hit = pickSurface(mesh_->faces(), s.position, ray);
-      if (!hit) return std::nullopt;
-      p.vertex = hit->nearestCorner;
-      p.controlFace = hit->face;
+      if (hit) {
+        p.vertex = hit->nearestCorner;
+        p.controlFace = hit->face;
+      }
     }
-    p.point = hit->point;
-    p.normal = hit->normal;
-    return p;
+    if (hit) {
+      p.point = hit->point;
+      p.normal = hit->normal;
+      return p;
+    }
+    // Off the surface: a vertex within a few pixels still counts (below), so that a press on
+    // a boundary or silhouette vertex, whose pixel straddles the surface's edge, takes it.
   }
-  // Curves and point sets: the vertex nearest the ray within a few pixels.
+  // Curves and point sets, and presses just off a surface: the vertex nearest the ray within
+  // a few pixels.
   const double tolerance = 8.0 * pixelScale_ * worldPerPixel(camera_, viewHeight_, camera_.target);
   p.vertex = pickNearestVertex(s.position, ray, tolerance);
   if (p.vertex < 0) return std::nullopt;
