@@ -395,6 +395,39 @@ TEST_F(Cli, AStateOutThenStateInOfASceneContinuesTheRun) {
   EXPECT_EQ(slurp(path("two.csv")), slurp(path("whole.csv")));
 }
 
+TEST_F(Cli, AStartTimeContinuesTimedLoadsAndEdits) {
+  // A state file holds no time: without --start-time the second half started at t = 0, so
+  // the scene's force (from 0.05 s) and its stiffness edit (at 0.1 s) acted again. With the
+  // first half's time_end as --start-time the two halves are the whole run, bit for bit.
+  std::ofstream(path("s.json")) << R"({"mesh": "builtin:torus:10:10",
+      "properties": {"angular_stiffness": 0.1},
+      "forces": [{"vertex": 5, "force": [0, 0, 2], "start": 0.05, "end": 0.3}],
+      "edits": [{"time": 0.1, "property": "stiffness", "global": true, "value": 8}],
+      "simulation": {"perturb": 0.05, "seed": 3}})";
+  const std::string common = "simulate " + path("s.json") + " --substep-strain 0 ";
+  ASSERT_EQ(run(common + "--steps 40 --state-out " + path("whole.csv")).status, 0);
+  const Result half = run(common + "--steps 20 --json --state-out " + path("half.csv"));
+  ASSERT_EQ(half.status, 0) << half.err;
+  const double at = nlohmann::json::parse(half.out).at("time_end").get<double>();
+  const Result first = run(common + "--steps 20 --json");
+  ASSERT_GT(at, 0.3);  // the force has ended, the edit was applied
+  ASSERT_LT(at, nlohmann::json::parse(first.out).at("dt").get<double>() * 20.5);
+  std::ostringstream start;
+  start.precision(17);
+  start << at;
+  const std::string second = common + "--steps 20 --state-in " + path("half.csv");
+  ASSERT_EQ(run(second + " --start-time " + start.str() + " --state-out " + path("two.csv")).status,
+            0);
+  EXPECT_EQ(slurp(path("two.csv")), slurp(path("whole.csv")));
+  ASSERT_EQ(run(second + " --state-out " + path("again.csv")).status, 0);
+  EXPECT_NE(slurp(path("again.csv")), slurp(path("whole.csv")));
+  for (const char* bad : {"-1", "nan", "inf"}) {
+    const Result r = run(second + " --start-time " + bad);
+    EXPECT_EQ(r.status, 2) << bad;
+    EXPECT_NE(r.err.find("--start-time"), std::string::npos) << r.err;
+  }
+}
+
 TEST_F(Cli, ReproduceFigure3FindsThePapersThreshold) {
   const Result r = run("reproduce figure3 --quick --out " + path("fig"));
   ASSERT_EQ(r.status, 0) << r.err;

@@ -110,7 +110,8 @@ int runSimulate(const SimulateOptions& options) {
               << "  \"momentum_drift\": " << jsonNumber(momentumDrift) << ",\n"
               << "  \"angular_momentum_drift\": " << jsonNumber(angularDrift) << ",\n"
               << "  \"split_steps\": " << splitCycles << ",\n"
-              << "  \"substeps_max\": " << mostSubsteps << ",\n";
+              << "  \"substeps_max\": " << mostSubsteps << ",\n"
+              << "  \"time_end\": " << jsonNumber(run.lastGood().time) << ",\n";
     if (edits.schedule.size() || options.verifyMatrices)
       std::cout << "  \"edits_applied\": " << edits.applied << ",\n";
     if (options.verifyMatrices)

@@ -87,6 +87,11 @@ void RunOptions::addTo(CLI::App* app) {
   app->add_option("--seed", seed, "seed of --perturb (default 0)");
   app->add_option("--state-in", stateIn, "initial state (CSV x,y,z,vx,vy,vz)");
   app->add_option("--state-out", stateOut, "write the final state here");
+  app->add_option("--start-time", startTime,
+                  "simulated time the run starts at, seconds (default 0): with --state-in, the "
+                  "time that state was written at, so that timed loads and scene edits go on "
+                  "(edits due by then are applied before the first step); --time and --steps "
+                  "count from it");
   app->add_option("--csv", csv, "diagnostics, one row per step");
   app->add_option("--force", forces, "I:FX,FY,FZ[:T0:T1] force at vertex I (repeatable)");
   app->add_option("--torque", torques, "I:TX,TY,TZ[:T0:T1] torque at vertex I (repeatable)");
@@ -287,6 +292,10 @@ void RunOptions::prepare(const LoadedModel& loaded, Simulation& sim) const {
     randomVelocity(loaded.model.properties.mass, amplitude, s, kick);
     state.velocity += kick;
   }
+  // A state file holds positions and velocities only (cli.md): the time comes from the flag.
+  if (!(startTime >= 0.0) || !std::isfinite(startTime))
+    throw InvalidInputError("--start-time: must be a finite number of seconds >= 0");
+  state.time = startTime;
   sim.setState(state);
   if (loaded.scene) {
     for (const io::TimedLoad& f : loaded.scene->forces)

@@ -42,6 +42,7 @@ struct RunOptions {
   std::optional<double> perturb;
   std::optional<unsigned> seed;
   std::string stateIn, stateOut, csv;
+  double startTime = 0.0;  ///< the simulated time the initial state is at (--start-time)
   std::vector<std::string> forces, torques;
   std::vector<std::string> pins, pinNormals;
   bool allowUnstable = false;
