@@ -712,8 +712,8 @@ TEST_F(Cli, BenchTimesOneModelAndUnderADrag) {
     EXPECT_EQ(m.at("drag").get<bool>(), drag);
     EXPECT_GT(m.at("step_seconds").get<double>(), 0.0);
     EXPECT_GE(m.at("steps_timed").get<long>(), 5);
-    // Braced, at the bench's 0.5 T_max: Psi is the quadratic fit times Phi (docs/solver.md).
-    EXPECT_EQ(m.at("drift_products").get<int>(), 3);
+    // Braced, at the bench's 0.5 T_max: Psi is the quadratic fit (docs/solver.md).
+    EXPECT_EQ(m.at("drift_products").get<int>(), 2);
   }
 }
 

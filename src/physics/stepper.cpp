@@ -93,23 +93,27 @@ inline void rowProduct(const SparseRowMatrix& a, const double* x, Index i, doubl
                                                           a.valuePtr(), x, i));
 }
 
-// The drift filter psi(x) = phi(x) q(x), phi = 1 - x/12, with q a fit of
-// 1 / (1 + x phi^2 / 4): the exact psi makes every mode's mean true energy its start energy
-// (docs/solver.md section 6). x = T^2 lambda for each eigenvalue lambda of W, all of them at
-// most T^2 times Gershgorin's bound on Omega^2 (W is its M-orthogonal compression), so the
-// fit need only hold up to that: the lowest degree that does so at least as closely as the
-// cubic on [0, 16] (relative error 2.6 %) does, and each degree fewer is one product with W
-// fewer per step. Minimax fits of the relative error with q(0) = 1 (docs/solver.md).
+// The drift filter psi(x), x = T^2 lambda for each eigenvalue lambda of W: the exact
+// phi / (1 + x phi^2 / 4), phi = 1 - x/12, makes every mode's mean true energy its start
+// energy (docs/solver.md section 6). All those x are at most T^2 times Gershgorin's bound on
+// Omega^2 (W is its M-orthogonal compression), so the fit need only hold up to that: the
+// lowest degree that does so at least as closely as phi times the cubic below holds on
+// [0, 16] (relative error 2.6 %), since each degree fewer is one product with W fewer per
+// step. Up to x = 7.8 psi itself is fitted (minimax of the relative error with psi(0) = 1,
+// by Remez exchange); beyond, psi = phi q with q the cubic fit of 1 / (1 + x phi^2 / 4),
+// which keeps psi's zero at x = 12 exactly.
 struct DriftFit {
   double upTo;  // x range
-  int terms;    // q = 1 + c_1 x + ... + c_terms x^terms
-  double c[3];
+  int degree;   // psi = 1 + a_1 x + ... + a_degree x^degree
+  double a[3];
 };
 constexpr DriftFit kDriftFits[] = {
-    {1.0, 1, {-0.184239, 0.0, 0.0}},                 // within 1.3 %
-    {4.0, 2, {-0.189984, 0.0290445, 0.0}},           // within 1.8 %
-    {16.0, 3, {-0.181526, 0.0302534, -0.00126054}},  // within 2.6 %; and beyond 16
+    {1.0, 1, {-0.254569243, 0.0, 0.0}},                       // within 1.60 %
+    {3.9, 2, {-0.25626648, 0.031479657, 0.0}},                // within 2.57 %
+    {7.8, 3, {-0.262613152, 0.04136553, -0.00251391197}},     // within 2.55 %
 };
+// q = 1 + c_1 x + c_2 x^2 + c_3 x^3, within 2.6 % on [0, 16]; psi = phi q beyond 7.8.
+constexpr double kDriftCubic[3] = {-0.181526, 0.0302534, -0.00126054};
 
 // The bits of every value of rows [begin, end), or-ed together (vectorises): zero when all
 // are +0; zero but for the sign bit when all are zeros of either sign (NaN is not zero).
@@ -647,18 +651,19 @@ void Stepper::chooseDriftFit() {
   double largest = 0.0;
   for (double b : spectrumBound_) largest = std::max(largest, b);
   const double x = period_ * period_ * largest;
-  const DriftFit* fit = &kDriftFits[std::size(kDriftFits) - 1];
+  driftA_.fill(0.0);
   for (const DriftFit& f : kDriftFits)
     if (x <= f.upTo) {
-      fit = &f;
-      break;
+      driftDegree_ = f.degree;
+      for (int k = 1; k <= f.degree; ++k)
+        driftA_[static_cast<size_t>(k)] = f.a[static_cast<size_t>(k) - 1];
+      return;
     }
-  // Psi = phi q: a_k = c_k - c_{k-1} / 12 with c_0 = 1, up to degree terms + 1.
-  driftDegree_ = fit->terms + 1;
-  driftA_.fill(0.0);
+  // Psi = phi q: a_k = c_k - c_{k-1} / 12 with c_0 = 1, up to degree 4.
+  driftDegree_ = 4;
   double previous = 1.0;
   for (int k = 1; k <= driftDegree_; ++k) {
-    const double c = k <= fit->terms ? fit->c[k - 1] : 0.0;
+    const double c = k <= 3 ? kDriftCubic[k - 1] : 0.0;
     driftA_[static_cast<size_t>(k)] = c - previous / 12.0;
     previous = c;
   }
@@ -685,7 +690,9 @@ VectorX Stepper::filteredPositionColumn(Index l) const {
     return w;
   };
   const VectorX phi = unit - (t2 / 12.0) * apply(unit);
+  // The stepper's Horner order and roundings (stepDriftFiltered).
   const int degree = driftDegree_;
+  if (degree == 1) return phi + (driftA_[1] * t2) * apply(phi);
   VectorX w = driftA_[static_cast<size_t>(degree) - 1] * phi +
               driftA_[static_cast<size_t>(degree)] * t2 * apply(phi);
   for (int k = degree - 2; k >= 1; --k) w = driftA_[static_cast<size_t>(k)] * phi + t2 * apply(w);
@@ -904,7 +911,7 @@ void Stepper::stepDriftFiltered(State& s, const Points& external, std::span<cons
   // Velocity Verlet with both half kicks and the drift filtered (stepper.h, docs/solver.md
   // section 6), the damping of G exact over two half steps:
   //   v <- e^{-GT} v + (T/2) Phi a(r);  r <- r + T Psi v;  v <- e^{-GT} (v + (T/2) Phi a(r)),
-  //   Phi = I - T^2 W / 12,  Psi = Phi (I + c1 T^2 W + c2 T^4 W^2 + c3 T^6 W^3),
+  //   Phi = I - T^2 W / 12,  Psi = I + a1 T^2 W + ... + aD (T^2 W)^D (kDriftFits),
   // W = (I - P) Omega^2 (I - P) the stiffness seen from outside the affine fields of the
   // rest shape (P their M-orthogonal projector), so that translations and rotations pass
   // both filters untouched. Every product with W is one pass over the blocks that also
@@ -1054,16 +1061,23 @@ void Stepper::stepDriftFiltered(State& s, const Points& external, std::span<cons
                       blockPartial(b));
         combine(false, &a);
       };
-      double* term = w1;
-      double* next = w2;
-      hornerPass(v, term, psi[degree - 1], psi[degree] * t2);
-      for (int k = degree - 2; k >= 1; --k) {
-        hornerPass(term, next, psi[k], t2);
-        std::swap(term, next);
+      // Degree 1 has no Horner term: r += T (v + a_1 T^2 W v), with the velocity's c and d.
+      const double* term = v;
+      double driftScale = psi[1] * t2;
+      if (degree > 1) {
+        double* out = w1;
+        double* next = w2;
+        hornerPass(v, out, psi[degree - 1], psi[degree] * t2);
+        for (int k = degree - 2; k >= 1; --k) {
+          hornerPass(out, next, psi[k], t2);
+          std::swap(out, next);
+        }
+        term = out;
+        driftScale = t2;
       }
 #pragma omp for schedule(static)
       for (Index b = 0; b < blocks; ++b)
-        rows.drift(in, forces_.blockBegin(b), forces_.blockEnd(b), term, v, r, t, t2);
+        rows.drift(in, forces_.blockBegin(b), forces_.blockEnd(b), term, v, r, t, driftScale);
     }
     if (finish) {
       // Internal forces at the new position, the second kick and damping.

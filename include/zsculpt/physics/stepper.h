@@ -68,7 +68,7 @@ struct StepperOptions {
   /// stays within 1 % at 0.9 T_max where the kick filter alone moves by up to 2-3 %, it
   /// conserves a momentum map that equals L on rigid motions, and storms and heavy loads
   /// that make the kick filter alone run away stay bounded with it; the price is phase
-  /// accuracy (the highest modes run slower) and four more products per step. On by
+  /// accuracy (the highest modes run slower) and one to four more products per step. On by
   /// default; off (`--no-drift-filter`) gives the kick filter alone.
   bool driftFilter = true;
   /// The drift filter's row passes in AVX2 where the processor has it (4 doubles a point,
@@ -183,7 +183,7 @@ class Stepper {
   /// Not for the per-step path: it allocates.
   [[nodiscard]] VectorX filteredPositionColumn(Index l) const;
   /// Default scheme with filtersDrift(): the products with W the drift takes per step, the
-  /// degree of Psi in T^2 W (2 to 4: the lowest whose fit holds at this period).
+  /// degree of Psi in T^2 W (1 to 4: the lowest whose fit holds at this period).
   [[nodiscard]] int driftProducts() const { return driftDegree_; }
   /// Default scheme with StepperOptions::measureEnergy, when the internal forces at the end
   /// of the last step, or those of startAt(), are still cached (nothing invalidated them
