@@ -468,18 +468,18 @@ bool ConstraintSolver::check(const ConstraintSet& constraints, const Points& end
   report.stopped = 0;
   report.turning = 0;
   report.targetError = 0.0;
-  for (const Plane& plane : planes_)
+  for (const Plane& plane : planes_) {
+    // A stop lasts until the target changes, through cycles in which the ring is let go.
+    if (plane.turn.stopped) ++report.stopped;
     if (plane.held) {
       report.normalError =
           std::max(report.normalError, planeResidual(plane, supportEnd_, rotation));
       const Vec3 target = constraints.get(plane.id).value;
       report.targetError =
           std::max(report.targetError, angleBetween(planeNormal(plane, supportEnd_), target));
-      if (plane.turn.stopped)
-        ++report.stopped;
-      else if (plane.goal != target)
-        ++report.turning;
+      if (!plane.turn.stopped && plane.goal != target) ++report.turning;
     }
+  }
   report.converged =
       report.positionError <= positionTolerance && report.normalError <= normalTolerance;
   return report.converged;

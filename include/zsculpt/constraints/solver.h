@@ -102,7 +102,7 @@ struct ConstraintReport {
   int released = 0;             // normal constraints let go this cycle (ConstraintSolver::held)
   int yielded = 0;              // held normals let go to hold the pins (yieldPlanes)
   int turning = 0;              // held normals whose cycle goal falls short of their target
-  int stopped = 0;              // held normals that stopped short of their target (kTurnBudget)
+  int stopped = 0;              // normals stopped short of their target (kTurnBudget), held or let go
   double targetError = 0.0;     // largest angle (rad) of a held normal from its target
   bool converged = true;        // both within tolerance
 };
