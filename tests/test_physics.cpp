@@ -739,12 +739,14 @@ TEST_P(DriftFilterLongRun, ASpinningModelKeepsSpinning) {
 TEST_P(DriftFilterLongRun, EachFitOfPsiKeepsTheEnergyWithinOnePercentAtTheEndOfItsRange) {
   // Below 0.9 T_max the drift filter's Psi is of lower degree (one product with W fewer per
   // degree): its fit need only hold up to x = T^2 times Gershgorin's bound on Omega^2, which
-  // on these models is 12 (T / T_max)^2. Each fit at the largest period it serves: the
-  // linear one to x = 1, the quadratic one to x = 3.9, the cubic one to x = 7.8.
+  // on these models is 12 (T / T_max)^2. Each fit near the largest period it serves: psi
+  // fitted itself to x = 0.88 (linear), 3.25 (quadratic) and 7.8 (cubic), phi q to x = 1
+  // (degree 2) and 4 (degree 3).
   const Model model = bracedModel(GetParam());
   const double tMax = criticalPeriod(SystemMatrices(model));
   for (const auto& [ratio, products] :
-       {std::pair{0.28, 1}, std::pair{0.57, 2}, std::pair{0.8, 3}}) {
+       {std::pair{0.27, 1}, std::pair{0.28, 2}, std::pair{0.515, 2}, std::pair{0.57, 3},
+        std::pair{0.8, 3}}) {
     const double dt = ratio * tMax;
     StepperOptions options;
     options.threads = 1;

@@ -945,12 +945,13 @@ TEST(Constraints, ATargetTheRingCannotTurnToStopsTheTurning) {
   // flips over and turns again, and every turn does work (before the turn budget the energy
   // climbed to 100 J in 300 cycles; before the turn rate, the first cycle put 105 J in). Once
   // the ring has lost pi radians of its way the constraint stops, says so, and holds the
-  // normal where it is, and stays stopped through the cycles its folded ring is let go.
-  // What this does not check: that the energy then stays flat. It did here until the drift
-  // filter's fits changed (twenty-second session), by chance: the same sheet at 41 periods
-  // from 0.40 to 0.60 T_max jumps by more than 5 % after the stop at 9 of them before that
-  // change (up to 1.76 times) and 5 after (up to 5.6 times), a held ring's open problem
-  // (docs/semi-rigid-and-constraints.md, "A stopped normal can still jump").
+  // normal where it is (AStopLastsThroughTheCyclesItsRingIsLetGo: also through let-go
+  // cycles). What this does not check: that the energy then stays flat. It does at 0.5
+  // T_max, by chance: the same sheet at 201 periods from 0.40 to 0.60 T_max jumps by more
+  // than 5 % after its stop in 48 of the 189 runs that stop, before the drift filter's fits
+  // changed in the twenty-second session (up to 2.6 times), and in 39 of 188 after (up to
+  // 14 times), a held ring's open problem (docs/semi-rigid-and-constraints.md, "A stopped
+  // normal can still jump").
   const Model model = makeModel(makeGrid(7), ModelSpec{.angular = 0.5});
   Simulation sim(model, settingsFor(model, 0.5));
   pinCorners(sim);
@@ -958,7 +959,7 @@ TEST(Constraints, ATargetTheRingCannotTurnToStopsTheTurning) {
   const Vec3 start = *bestPlaneNormal(model.mesh, model.mesh.positions(), centre);
   sim.addNormalConstraint(centre, -start);
   (void)sim.takeWarnings();
-  int stoppedAt = -1, letGo = 0;
+  int stoppedAt = -1;
   bool warned = false;
   double atStop = 0.0, highest = 0.0;
   for (int k = 0; k < 300; ++k) {
@@ -973,12 +974,11 @@ TEST(Constraints, ATargetTheRingCannotTurnToStopsTheTurning) {
     if (stoppedAt >= 0) {
       EXPECT_EQ(report.stopped, 1) << "cycle " << k;
       EXPECT_EQ(report.turning, 0) << "cycle " << k;
-      letGo += report.released;
       highest = std::max(highest, sim.diagnostics().total());
     }
   }
-  std::printf("stopped at cycle %d with %.6g J; at most %.6g J after; let go in %d cycles\n",
-              stoppedAt, atStop, highest, letGo);
+  std::printf("stopped at cycle %d with %.6g J; at most %.6g J after\n", stoppedAt, atStop,
+              highest);
   ASSERT_GE(stoppedAt, 0);
   EXPECT_TRUE(warned);
   // A drag stroke elsewhere (a pin added, then removed) does not start the turning again:
@@ -1008,6 +1008,36 @@ TEST(Constraints, ATargetTheRingCannotTurnToStopsTheTurning) {
   sim.setConstraintNormal(*sim.constraints().find(ConstraintKind::Normal, centre), start);
   sim.step();
   EXPECT_EQ(sim.constraintReport().stopped, 0);
+}
+
+TEST(Constraints, AStopLastsThroughTheCyclesItsRingIsLetGo) {
+  // The sheet above at other periods: after the stop its folding ring is let go for a cycle
+  // now and then (kMaxPlaneFlatness). The stop belongs to the constraint's record, so every
+  // cycle after it reports it, let go or held, and none turns the ring. Until the
+  // twenty-second session a let-go cycle reported no stop (22 of 41 periods from 0.40
+  // to 0.60 T_max failed on that); which periods fold after their stop follows the
+  // trajectory, so several are run and some must fold.
+  const Model model = makeModel(makeGrid(7), ModelSpec{.angular = 0.5});
+  int letGo = 0;
+  for (const double ratio : {0.43, 0.445, 0.525, 0.535, 0.545}) {
+    Simulation sim(model, settingsFor(model, ratio));
+    pinCorners(sim);
+    const Vec3 start = *bestPlaneNormal(model.mesh, model.mesh.positions(), kSheetCentre);
+    sim.addNormalConstraint(kSheetCentre, -start);
+    bool stopped = false;
+    for (int k = 0; k < 300; ++k) {
+      sim.step();
+      const ConstraintReport& report = sim.constraintReport();
+      stopped = stopped || report.stopped > 0;
+      if (!stopped) continue;
+      EXPECT_EQ(report.stopped, 1) << ratio << " T_max, cycle " << k;
+      EXPECT_EQ(report.turning, 0) << ratio << " T_max, cycle " << k;
+      letGo += report.released;
+    }
+    EXPECT_TRUE(stopped) << ratio << " T_max";
+  }
+  std::printf("let go in %d cycles after the stops\n", letGo);
+  EXPECT_GT(letGo, 0);
 }
 
 TEST(Constraints, ANormalYieldsToASwingItCannotHold) {

@@ -170,10 +170,11 @@ double compulsoryBytes(const Model& model, const Stepper& stepper) {
   const double massBases = 8 * scalar;                  // m_i B_i and m_i (Omega^2 B)_i
   perVertex += 2 * point + point + scalar + massBases;  // v = v e^{-GT/2} + kick, summed
   // The Horner passes, out = a v + s W u, each summing (Omega^2 B)^T M out: one fewer than
-  // Psi's degree (driftProducts: 4 at 0.9 T_max, 2 at the bench's 0.5 T_max).
-  perVertex += (stepper.driftProducts() - 1) * (point + point + point + csr + bases + scalar);
-  // r += T (v + T^2 W w), w = v at degree 1.
-  perVertex += (stepper.driftProducts() > 1 ? point : 0) + point + 2 * point + csr + bases;
+  // Psi's degree (driftProducts: 4 at 0.9 T_max, 2 at the bench's 0.5 T_max); the first
+  // has u = v. Then r += T (v + T^2 W w), w = v at degree 1 (an array read once a pass).
+  const int horner = stepper.driftProducts() - 1;
+  perVertex += horner * (point + point + point + csr + bases + scalar) - (horner > 0 ? point : 0);
+  perVertex += (horner > 0 ? point : 0) + point + 2 * point + csr + bases;
   perVertex += point + scalar + point + massBases;                // a = M^-1 f, summed
   perVertex += point + point + 2 * point + csr + bases + scalar;  // the last kick, v
   return perVertex * n;

@@ -96,24 +96,26 @@ inline void rowProduct(const SparseRowMatrix& a, const double* x, Index i, doubl
 // The drift filter psi(x), x = T^2 lambda for each eigenvalue lambda of W: the exact
 // phi / (1 + x phi^2 / 4), phi = 1 - x/12, makes every mode's mean true energy its start
 // energy (docs/solver.md section 6). All those x are at most T^2 times Gershgorin's bound on
-// Omega^2 (W is its M-orthogonal compression), so the fit need only hold up to that: the
-// lowest degree that does so at least as closely as phi times the cubic below holds on
-// [0, 16] (relative error 2.6 %), since each degree fewer is one product with W fewer per
-// step. Up to x = 7.8 psi itself is fitted (minimax of the relative error with psi(0) = 1,
-// by Remez exchange); beyond, psi = phi q with q the cubic fit of 1 / (1 + x phi^2 / 4),
-// which keeps psi's zero at x = 12 exactly.
+// Omega^2 (W is its M-orthogonal compression), so the fit need only hold up to that, and
+// each degree fewer is one product with W fewer per step. Two forms, minimax fits of the
+// relative error with psi(0) = 1: phi q, q a fit of 1 / (1 + x phi^2 / 4) (the zero at
+// x = 12 built in), and psi itself, a degree lower for the same accuracy; psi itself is
+// used wherever it is at least as close as the phi q it replaces on the same range.
 struct DriftFit {
-  double upTo;  // x range
-  int degree;   // psi = 1 + a_1 x + ... + a_degree x^degree
-  double a[3];
+  double upTo;   // x range
+  bool timesPhi;  // psi = phi (1 + c_1 x + ...), else psi = 1 + c_1 x + ...
+  int degree;     // psi's degree
+  double c[3];
 };
 constexpr DriftFit kDriftFits[] = {
-    {1.0, 1, {-0.254569243, 0.0, 0.0}},                    // within 1.60 %
-    {3.9, 2, {-0.25626648, 0.031479657, 0.0}},             // within 2.57 %
-    {7.8, 3, {-0.262613152, 0.04136553, -0.00251391197}},  // within 2.55 %
+    {0.88, false, 1, {-0.261967826, 0.0, 0.0}},                        // within 1.28 %
+    {1.0, true, 2, {-0.184239, 0.0, 0.0}},                             // within 1.29 %
+    {3.25, false, 2, {-0.269917131, 0.0374381083, 0.0}},               // within 1.77 %
+    {4.0, true, 3, {-0.189984, 0.0290445, 0.0}},                       // within 1.80 %
+    {7.8, false, 3, {-0.262613152, 0.04136553, -0.00251391197}},       // within 2.55 %
+    {std::numeric_limits<double>::infinity(), true, 4,
+     {-0.181526, 0.0302534, -0.00126054}},  // within 2.58 % up to 7.8, 2.6 % on [0, 16]
 };
-// q = 1 + c_1 x + c_2 x^2 + c_3 x^3, within 2.6 % on [0, 16]; psi = phi q beyond 7.8.
-constexpr double kDriftCubic[3] = {-0.181526, 0.0302534, -0.00126054};
 
 // The bits of every value of rows [begin, end), or-ed together (vectorises): zero when all
 // are +0; zero but for the sign bit when all are zeros of either sign (NaN is not zero).
@@ -651,20 +653,19 @@ void Stepper::chooseDriftFit() {
   double largest = 0.0;
   for (double b : spectrumBound_) largest = std::max(largest, b);
   const double x = period_ * period_ * largest;
-  driftA_.fill(0.0);
+  const DriftFit* fit = &kDriftFits[std::size(kDriftFits) - 1];
   for (const DriftFit& f : kDriftFits)
     if (x <= f.upTo) {
-      driftDegree_ = f.degree;
-      for (int k = 1; k <= f.degree; ++k)
-        driftA_[static_cast<size_t>(k)] = f.a[static_cast<size_t>(k) - 1];
-      return;
+      fit = &f;
+      break;
     }
-  // Psi = phi q: a_k = c_k - c_{k-1} / 12 with c_0 = 1, up to degree 4.
-  driftDegree_ = 4;
+  driftDegree_ = fit->degree;
+  driftA_.fill(0.0);
+  // phi q: a_k = c_k - c_{k-1} / 12 with c_0 = 1 and c_degree = 0.
   double previous = 1.0;
   for (int k = 1; k <= driftDegree_; ++k) {
-    const double c = k <= 3 ? kDriftCubic[k - 1] : 0.0;
-    driftA_[static_cast<size_t>(k)] = c - previous / 12.0;
+    const double c = k <= 3 ? fit->c[k - 1] : 0.0;
+    driftA_[static_cast<size_t>(k)] = fit->timesPhi ? c - previous / 12.0 : c;
     previous = c;
   }
 }
