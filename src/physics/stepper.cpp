@@ -102,19 +102,19 @@ inline void rowProduct(const SparseRowMatrix& a, const double* x, Index i, doubl
 // x = 12 built in), and psi itself, a degree lower for the same accuracy; psi itself is
 // used wherever it is at least as close as the phi q it replaces on the same range.
 struct DriftFit {
-  double upTo;   // x range
+  double upTo;    // x range
   bool timesPhi;  // psi = phi (1 + c_1 x + ...), else psi = 1 + c_1 x + ...
   int degree;     // psi's degree
   double c[3];
 };
+constexpr double kBeyondAll = std::numeric_limits<double>::infinity();
 constexpr DriftFit kDriftFits[] = {
-    {0.88, false, 1, {-0.261967826, 0.0, 0.0}},                        // within 1.28 %
-    {1.0, true, 2, {-0.184239, 0.0, 0.0}},                             // within 1.29 %
-    {3.25, false, 2, {-0.269917131, 0.0374381083, 0.0}},               // within 1.77 %
-    {4.0, true, 3, {-0.189984, 0.0290445, 0.0}},                       // within 1.80 %
-    {7.8, false, 3, {-0.262613152, 0.04136553, -0.00251391197}},       // within 2.55 %
-    {std::numeric_limits<double>::infinity(), true, 4,
-     {-0.181526, 0.0302534, -0.00126054}},  // within 2.58 % up to 7.8, 2.6 % on [0, 16]
+    {0.88, false, 1, {-0.261967826, 0.0, 0.0}},                   // within 1.28 %
+    {1.0, true, 2, {-0.184239, 0.0, 0.0}},                        // within 1.29 %
+    {3.25, false, 2, {-0.269917131, 0.0374381083, 0.0}},          // within 1.77 %
+    {4.0, true, 3, {-0.189984, 0.0290445, 0.0}},                  // within 1.80 %
+    {7.8, false, 3, {-0.262613152, 0.04136553, -0.00251391197}},  // within 2.55 %
+    {kBeyondAll, true, 4, {-0.181526, 0.0302534, -0.00126054}},   // 2.6 % on [0, 16]
 };
 
 // The bits of every value of rows [begin, end), or-ed together (vectorises): zero when all
