@@ -661,7 +661,8 @@ void Stepper::chooseDriftFit() {
     }
   driftDegree_ = fit->degree;
   driftA_.fill(0.0);
-  // phi q: a_k = c_k - c_{k-1} / 12 with c_0 = 1 and c_degree = 0.
+  // Psi's coefficients a_k: c_k for psi itself; for phi q, c_k - c_{k-1} / 12 with c_0 = 1
+  // and c_degree = 0.
   double previous = 1.0;
   for (int k = 1; k <= driftDegree_; ++k) {
     const double c = k <= 3 ? fit->c[k - 1] : 0.0;
