@@ -60,7 +60,7 @@ int runSimulate(const SimulateOptions& options) {
   Diagnostics last = start;
   const auto wallStart = std::chrono::steady_clock::now();
   GuardedRun run(sim, edits);
-  long splitCycles = 0;
+  long splitCycles = 0, retakenCycles = 0;
   int mostSubsteps = 1;
   for (long k = 1; k <= steps; ++k) {
     if (!run.step(k)) {
@@ -69,6 +69,7 @@ int runSimulate(const SimulateOptions& options) {
       break;
     }
     if (sim.substeps() > 1) ++splitCycles;
+    if (sim.retakes() > 0) ++retakenCycles;
     mostSubsteps = std::max(mostSubsteps, sim.substeps());
     const Diagnostics& d = run.diagnostics();
     last = d;
@@ -111,6 +112,7 @@ int runSimulate(const SimulateOptions& options) {
               << "  \"angular_momentum_drift\": " << jsonNumber(angularDrift) << ",\n"
               << "  \"split_steps\": " << splitCycles << ",\n"
               << "  \"substeps_max\": " << mostSubsteps << ",\n"
+              << "  \"retaken_steps\": " << retakenCycles << ",\n"
               << "  \"time_end\": " << jsonNumber(run.lastGood().time) << ",\n";
     if (edits.schedule.size() || options.verifyMatrices)
       std::cout << "  \"edits_applied\": " << edits.applied << ",\n";
@@ -135,6 +137,9 @@ int runSimulate(const SimulateOptions& options) {
     if (splitCycles > 0)
       std::cout << splitCycles << " steps split for fast motion, into up to " << mostSubsteps
                 << " substeps\n";
+    if (retakenCycles > 0)
+      std::cout << retakenCycles
+                << " steps taken again in more substeps (their motion grew within them)\n";
     std::cout << "wall " << wall << " s\n";
     if (edits.schedule.size() || options.verifyMatrices) {
       std::cout << "edits applied " << edits.applied;

@@ -399,6 +399,26 @@ void ConstraintSolver::forgetTurning() {
   for (Plane& plane : planes_) plane.turn = TurnRecord{};
 }
 
+void ConstraintSolver::markCycle() {
+  markedTurn_.resize(planes_.size());
+  markedHint_.resize(planes_.size());
+  for (size_t q = 0; q < planes_.size(); ++q) {
+    markedTurn_[q] = planes_[q].turn;
+    markedHint_[q] = planes_[q].hint;
+  }
+  markedUnknowns_.resize(static_cast<Index>(3 * pins_.size() + 2 * planes_.size()));
+  unknowns(markedUnknowns_);
+}
+
+void ConstraintSolver::rewindCycle() {
+  for (size_t q = 0; q < planes_.size(); ++q) {
+    planes_[q].turn = markedTurn_[q];
+    planes_[q].hint = markedHint_[q];
+  }
+  setUnknowns(markedUnknowns_);  // beginStep assembles the forces with its gradients
+  newlyStopped_.clear();
+}
+
 Vec3 ConstraintSolver::planeNormal(const Plane& plane, const Points& supportPosition) const {
   points_.clear();
   for (Index l : plane.locals) points_.push_back(supportPosition.row(l).transpose());

@@ -106,6 +106,7 @@ void Simulation::setState(const State& state) {
   baseForceValid_ = false;
   solver_.forgetTurning();  // the normals' turning was towards where the last state was
   energyAtState_ = false;
+  endRateValid_ = false;
   ledger_ = ImpulseLedger{};
   stepper_->invalidate();
 }
@@ -119,6 +120,7 @@ void Simulation::setTimeStep(Scheme scheme, double period) {
   substeps_ = 1;           // chosen again at the next cycle
   responseValid_ = false;  // the constraints' response is the step's
   energyAtState_ = false;  // the new stepper has not measured the state's energy
+  endRateValid_ = false;
 }
 
 void Simulation::propertiesChanged(std::span<const Index> vertices) {
@@ -134,6 +136,7 @@ void Simulation::propertiesChanged(std::span<const Index> vertices) {
   }
   stepper_->propertiesChanged(vertices);
   energyAtState_ = false;
+  endRateValid_ = false;
   const bool wasActive = rigidActive_;
   updateRigidity();
   if (rigidActive_) splitVelocity();
@@ -144,6 +147,7 @@ void Simulation::allPropertiesChanged() {
   model_.properties.validate(model_.mesh, model_.angles);
   stepper_->rebuild();
   energyAtState_ = false;
+  endRateValid_ = false;
   const bool wasActive = rigidActive_;
   updateRigidity();
   if (rigidActive_) splitVelocity();
@@ -315,16 +319,30 @@ std::vector<std::string> Simulation::takeWarnings() {
 
 // ---- the cycle ------------------------------------------------------------------------------
 
-void Simulation::chooseSubsteps() {
-  const double limit = settings_.substepStrain;
-  if (!(limit > 0.0) || stepper_->scheme() != Scheme::Default) return;
+namespace {
+
+// Steps of a split cycle for a strain of `strain` over the whole cycle: the least power of
+// two n (at most kMaxSubsteps) with strain <= bound n.
+int stepsFor(double strain, double bound) {
+  int n = 1;
+  while (n < kMaxSubsteps && strain > bound * n) n *= 2;
+  return n;
+}
+
+}  // namespace
+
+bool Simulation::substepping() const {
+  return settings_.substepStrain > 0.0 && stepper_->scheme() == Scheme::Default;
+}
+
+double Simulation::strainRate2() const {
   const std::vector<std::array<Index, 2>>& edges = model_.mesh.edges();
   const VectorX& rest = model_.properties.restLength;
   const Points& v = state_.velocity;
   const Index m = static_cast<Index>(edges.size());
-  // The largest (|v_a - v_b| / lambda_ab)^2. Springs of rest length 0 (equation 1's linear
-  // ones) are left out: their stiffness does not depend on the amplitude. As many threads
-  // as the step found worth it (a second thread only helps when a core is free).
+  // Springs of rest length 0 (equation 1's linear ones) are left out: their stiffness does
+  // not depend on the amplitude. As many threads as the step found worth it (a second
+  // thread only helps when a core is free).
   double rate2 = 0.0;
   const int threads = stepper_->threads();
   // clang-format off
@@ -337,22 +355,29 @@ void Simulation::chooseSubsteps() {
     const double dx = v(a, 0) - v(b, 0), dy = v(a, 1) - v(b, 1), dz = v(a, 2) - v(b, 2);
     rate2 = std::max(rate2, (dx * dx + dy * dy + dz * dz) / (lambda * lambda));
   }
-  const double strain = std::sqrt(rate2) * cyclePeriod_;  // over a whole cycle
-  auto needed = [strain](double bound) {
-    int n = 1;
-    while (n < kMaxSubsteps && strain > bound * n) n *= 2;
-    return n;
-  };
-  int n = substeps_;
-  if (const int up = needed(limit); up > n)
-    n = up;
-  else if (const int down = needed(0.5 * limit); down < n)
-    n = down;
+  return rate2;
+}
+
+void Simulation::setSubsteps(int n) {
   if (n == substeps_) return;
   substeps_ = n;
   // The division is exact for powers of two, so n = 1 gives T back bit for bit.
   stepper_->setPeriod(cyclePeriod_ / n);
   responseValid_ = false;  // the constraints' response is the step's
+}
+
+void Simulation::chooseSubsteps() {
+  if (!substepping()) return;
+  // The last cycle's end measured it, unless something changed the state since.
+  const double rate2 = endRateValid_ ? endRate2_ : strainRate2();
+  const double strain = std::sqrt(rate2) * cyclePeriod_;  // over a whole cycle
+  const double limit = settings_.substepStrain;
+  int n = substeps_;
+  if (const int up = stepsFor(strain, limit); up > n)
+    n = up;
+  else if (const int down = stepsFor(strain, 0.5 * limit); down < n)
+    n = down;
+  setSubsteps(n);
 }
 
 Diagnostics Simulation::diagnostics() const {
@@ -362,9 +387,27 @@ Diagnostics Simulation::diagnostics() const {
   return measure(model_, state_);
 }
 
+void Simulation::rewindState(const ImpulseLedger& ledgerBefore) {
+  const int threads = stepper_->threads();
+  copyPoints(lastGood_.position, state_.position, threads);
+  copyPoints(lastGood_.velocity, state_.velocity, threads);
+  state_.time = lastGood_.time;
+  if (rigidActive_) {
+    rigidMomentum_ = lastGoodMomentum_;
+    deformation_ = lastGoodDeformation_;
+  }
+  ledger_ = ledgerBefore;
+  baseForceValid_ = false;
+  energyAtState_ = false;
+  endRateValid_ = false;
+  stepper_->invalidate();  // its kept kick and forces are the abandoned cycle's
+}
+
 void Simulation::step() {
   energyAtState_ = false;
+  retakes_ = 0;
   chooseSubsteps();
+  endRateValid_ = false;
   copyPoints(state_.position, lastGood_.position, stepper_->threads());
   copyPoints(state_.velocity, lastGood_.velocity, stepper_->threads());
   lastGood_.time = state_.time;
@@ -373,23 +416,16 @@ void Simulation::step() {
     lastGoodDeformation_ = deformation_;
   }
   const ImpulseLedger ledgerBefore = ledger_;
-  constraintWork_ = 0.0;
-  loadWork_ = 0.0;
   const bool loaded = !forces_.empty() || !torques_.empty();
-  // Each step of a split cycle is a cycle of its own (loads, constraints, rigid coupling) at
-  // T / n. Position constraints move their targets from where their vertices start to where
-  // they are asked to be in n equal parts, so that a drag is as smooth as in one cycle.
+  // What a retake puts back besides the state: the normals' turning records and the solve's
+  // warm start (set up first for a new support, so that the marks are the set-up's), and
+  // the warnings the abandoned cycle gave.
+  syncSupport();
+  const bool marked = !constraints_.empty();
+  if (marked) solver_.markCycle();
+  const size_t warningsBefore = warnings_.size();
+  const bool warned[3] = {warnedUnmet_, warnedReleased_, warnedYielded_};
   const std::span<const Constraint> items = constraints_.constraints();
-  if (substeps_ > 1) {
-    targetEnd_.resize(items.size());
-    targetStart_.resize(items.size());
-    for (size_t c = 0; c < items.size(); ++c) {
-      targetEnd_[c] = items[c].value;
-      targetStart_[c] = items[c].kind == ConstraintKind::Position
-                            ? Vec3(state_.position.row(items[c].vertex).transpose())
-                            : items[c].value;
-    }
-  }
   auto setTargets = [&](double share) {
     for (size_t c = 0; c < items.size(); ++c)
       if (items[c].kind == ConstraintKind::Position)
@@ -398,35 +434,63 @@ void Simulation::step() {
                              ? targetEnd_[c]
                              : Vec3(targetStart_[c] + share * (targetEnd_[c] - targetStart_[c])));
   };
-  try {
-    for (int k = 1; k <= substeps_; ++k) {
-      if (substeps_ > 1) {
-        setTargets(static_cast<double>(k) / substeps_);
-        if (loaded) subStart_ = state_.position;
+  bool targetsKept = false;
+  for (;;) {
+    constraintWork_ = 0.0;
+    loadWork_ = 0.0;
+    // Each step of a split cycle is a cycle of its own (loads, constraints, rigid coupling)
+    // at T / n. Position constraints move their targets from where their vertices start to
+    // where they are asked to be in n equal parts, so that a drag is as smooth as in one
+    // cycle.
+    if (substeps_ > 1 && !targetsKept) {
+      targetEnd_.resize(items.size());
+      targetStart_.resize(items.size());
+      for (size_t c = 0; c < items.size(); ++c) {
+        targetEnd_[c] = items[c].value;
+        targetStart_[c] = items[c].kind == ConstraintKind::Position
+                              ? Vec3(state_.position.row(items[c].vertex).transpose())
+                              : items[c].value;
       }
-      subCycle(substeps_ > 1 && loaded ? subStart_ : lastGood_.position);
+      targetsKept = true;
     }
-  } catch (...) {
-    // A divergence, or anything else thrown mid-cycle (the stepper may be inside a begun
-    // step): back to where the cycle started, the normals' turning record forgotten (it
-    // counted the failed cycle).
-    if (substeps_ > 1) setTargets(1.0);
-    solver_.forgetTurning();
-    state_.position = lastGood_.position;
-    state_.velocity = lastGood_.velocity;
-    state_.time = lastGood_.time;
-    if (rigidActive_) {
-      rigidMomentum_ = lastGoodMomentum_;
-      deformation_ = lastGoodDeformation_;
+    try {
+      for (int k = 1; k <= substeps_; ++k) {
+        if (substeps_ > 1) {
+          setTargets(static_cast<double>(k) / substeps_);
+          if (loaded) subStart_ = state_.position;
+        }
+        subCycle(substeps_ > 1 && loaded ? subStart_ : lastGood_.position);
+      }
+    } catch (...) {
+      // A divergence, or anything else thrown mid-cycle (the stepper may be inside a begun
+      // step): back to where the cycle started.
+      if (targetsKept) setTargets(1.0);
+      if (marked)
+        solver_.rewindCycle();
+      else
+        solver_.forgetTurning();
+      rewindState(ledgerBefore);
+      throw;
     }
-    ledger_ = ledgerBefore;
-    baseForceValid_ = false;
-    energyAtState_ = false;
-    stepper_->invalidate();
-    throw;
+    // n additions of T / n need not add up to T.
+    if (substeps_ > 1) state_.time = lastGood_.time + cyclePeriod_;
+    if (!substepping()) break;
+    // The end velocities' strain, kept for the next cycle's choice. A cycle whose motion grew
+    // within it beyond what its start told (a folding sheet's springs, stiff where it
+    // folds, turned 31 J into 2808 J in one) is taken again in as many steps as the end asks.
+    endRate2_ = strainRate2();
+    endRateValid_ = true;
+    const int wanted = stepsFor(std::sqrt(endRate2_) * cyclePeriod_, settings_.substepStrain);
+    if (wanted <= kRetakeFactor * substeps_) break;
+    if (marked) solver_.rewindCycle();
+    rewindState(ledgerBefore);
+    warnings_.resize(warningsBefore);
+    warnedUnmet_ = warned[0];
+    warnedReleased_ = warned[1];
+    warnedYielded_ = warned[2];
+    setSubsteps(wanted);
+    ++retakes_;
   }
-  // n additions of T / n need not add up to T.
-  if (substeps_ > 1) state_.time = lastGood_.time + cyclePeriod_;
 }
 
 void Simulation::subCycle(const Points& start) {
@@ -633,28 +697,30 @@ void Simulation::finishRigid() {
                    stepper_->threads());
 }
 
+void Simulation::syncSupport() {
+  if (constraints_.empty() || constraints_.revision() == constraintRevision_) return;
+  // The old support's forces go now, with the revision that records the change: the
+  // clearing below skips them once the revision is current.
+  constraintForce_.setZero();
+  constraintForceZero_ = true;
+  solver_.setUp(model_.mesh, constraints_);
+  constraintRevision_ = constraints_.revision();
+  responseValid_ = false;
+  const Index s = static_cast<Index>(solver_.support().size());
+  supportStart_.setZero(s, 3);
+  supportElastic_.setZero(s, 3);
+  velocityDelta_.setZero(s, 3);
+  supportChi_.assign(static_cast<size_t>(s), 0.0);
+  warnedUnmet_ = false;
+  warnedReleased_ = false;
+  warnedYielded_ = false;
+}
+
 void Simulation::coupledStep() {
   const double t = stepper_->period();
   const VectorX& mass = model_.properties.mass;
   const bool constrained = !constraints_.empty();
-  const bool supportChanged = constrained && constraints_.revision() != constraintRevision_;
-  if (supportChanged) {
-    // The old support's forces go now, with the revision that records the change: the
-    // clearing below skips them once the revision is current.
-    constraintForce_.setZero();
-    constraintForceZero_ = true;
-    solver_.setUp(model_.mesh, constraints_);
-    constraintRevision_ = constraints_.revision();
-    responseValid_ = false;
-    const Index s = static_cast<Index>(solver_.support().size());
-    supportStart_.setZero(s, 3);
-    supportElastic_.setZero(s, 3);
-    velocityDelta_.setZero(s, 3);
-    supportChi_.assign(static_cast<size_t>(s), 0.0);
-    warnedUnmet_ = false;
-    warnedReleased_ = false;
-    warnedYielded_ = false;
-  }
+  syncSupport();  // step() did, unless called otherwise
   if (constrained && !responseValid_) {
     response_.buildElastic(*stepper_, model_, stepperShare(), solver_.support());
     responseValid_ = true;

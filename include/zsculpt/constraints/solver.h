@@ -173,6 +173,10 @@ class ConstraintSolver {
   /// Forgets every normal's turning record (what it lost, whether it stopped): after the
   /// state was set or a cycle rolled back.
   void forgetTurning();
+  /// Marks the start of a cycle: every normal's turning record and orientation hint and the
+  /// unknowns (the warm start), for rewindCycle() to put back when the cycle is retaken.
+  void markCycle();
+  void rewindCycle();
   /// Those that stopped this cycle, each with its angle from its target (rad).
   struct Stop {
     Index vertex;
@@ -265,6 +269,10 @@ class ConstraintSolver {
   Points pinError_, pinStep_;  // |S| x 3, for the pins-only solve
   // save() / restore(): the unknowns, held flags and gradients.
   VectorX savedUnknowns_;
+  // markCycle() / rewindCycle(): per plane its turning record and hint, and the unknowns.
+  std::vector<TurnRecord> markedTurn_;
+  std::vector<Vec3> markedHint_;
+  VectorX markedUnknowns_;
   std::vector<char> savedHeld_;
   std::vector<std::vector<Eigen::Matrix<double, 3, 2>>> savedGradient_;
   Points planeMotion_;         // |S| x 3, for planesWithinReach

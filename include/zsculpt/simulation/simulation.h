@@ -57,6 +57,10 @@ enum class RigidFrame {
 
 /// The most steps SimulationSettings::substepStrain splits a cycle into.
 inline constexpr int kMaxSubsteps = 64;
+/// A cycle whose end velocities ask for more than this many times the steps it took (by
+/// SimulationSettings::substepStrain's rule) is taken again from its start in as many as
+/// they ask for: the motion grew within it by more than its start could tell.
+inline constexpr int kRetakeFactor = 4;
 
 struct SimulationSettings {
   Scheme scheme = Scheme::Default;
@@ -104,6 +108,8 @@ class Simulation {
   [[nodiscard]] double period() const { return cyclePeriod_; }
   /// Steps per cycle at present (SimulationSettings::substepStrain): 1, 2, 4, ...
   [[nodiscard]] int substeps() const { return substeps_; }
+  /// How many times the last cycle was taken again with more steps (kRetakeFactor).
+  [[nodiscard]] int retakes() const { return retakes_; }
   [[nodiscard]] const SimulationSettings& settings() const { return settings_; }
 
   /// Changes the scheme and the cycle's period T in place; the state, loads, constraints (their
@@ -144,7 +150,9 @@ class Simulation {
   std::vector<std::string> takeWarnings();
 
   /// One cycle. Throws DivergenceError if the state becomes non-finite; on that or any other
-  /// error the state is left at the last finite one, where the cycle started.
+  /// error the state is left at the last finite one, where the cycle started. A cycle of the
+  /// default scheme that ran away within itself (kRetakeFactor) is taken again from its
+  /// start, its loads, constraints, turning records, ledger and warnings as they were then.
   void step();
 
   /// Energy and momentum of the current state. After a cycle of the default scheme the
@@ -181,6 +189,7 @@ class Simulation {
   /// Throws InvalidInputError when a value is out of range (e.g. rigidity outside [0, 1]).
   PhysicalProperties& mutableProperties() {
     energyAtState_ = false;
+    endRateValid_ = false;  // rest lengths may change
     return model_.properties;
   }
   void propertiesChanged(std::span<const Index> vertices);
@@ -190,6 +199,14 @@ class Simulation {
   void gatherLoads(double t, const Points& position, Points& out);
   // SimulationSettings::substepStrain: splits or joins the coming cycle's steps.
   void chooseSubsteps();
+  [[nodiscard]] bool substepping() const;
+  // The largest (|v_a - v_b| / lambda_ab)^2 over the edges of rest length > 0.
+  [[nodiscard]] double strainRate2() const;
+  void setSubsteps(int n);
+  // A new constraint support (constraints added, moved or removed) set up.
+  void syncSupport();
+  // Back to the cycle's start (step()): state, rigid motion, ledger, stepper caches.
+  void rewindState(const ImpulseLedger& ledgerBefore);
   // One step of the cycle: loads, the elastic (or coupled) step, the constraints. Throws
   // DivergenceError on a non-finite state. `start` holds the positions at its start.
   void subCycle(const Points& start);
@@ -216,6 +233,11 @@ class Simulation {
   std::unique_ptr<Stepper> stepper_;
   double cyclePeriod_ = 0.0;
   int substeps_ = 1;  // the stepper's period is cyclePeriod_ / substeps_
+  int retakes_ = 0;
+  // strainRate2() at the end of the last cycle, for the next one's chooseSubsteps (cleared by
+  // anything that changes the velocities or the rest lengths between cycles).
+  double endRate2_ = 0.0;
+  bool endRateValid_ = false;
   double loadWork_ = 0.0;
   std::vector<Vec3> targetStart_, targetEnd_;  // position targets over a split cycle
   Points subStart_;                            // positions at a split cycle's step's start
