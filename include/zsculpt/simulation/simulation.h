@@ -60,7 +60,7 @@ inline constexpr int kMaxSubsteps = 64;
 /// A cycle whose end velocities ask for more than this many times the steps it took (by
 /// SimulationSettings::substepStrain's rule) is taken again from its start in as many as
 /// they ask for: the motion grew within it by more than its start could tell.
-inline constexpr int kRetakeFactor = 4;
+inline constexpr int kRetakeFactor = 2;
 
 struct SimulationSettings {
   Scheme scheme = Scheme::Default;
