@@ -436,7 +436,7 @@ TEST(Session, PaintingStifferKeepsThePeriodAtItsFractionOfTMaxAndTheRunFinite) {
   // A modeller paints stiffness 40x over a running grid. The period must follow T_max down
   // (equation 5 for the new stiffness), or the next cycles blow up.
   SessionSetup setup = gridSetup(8, 0.9);
-  setup.scene.simulation.perturb = 1e-9;
+  setup.scene.simulation.perturb = 0.05;
   Session session(std::move(setup));
   session.apply(Play{});
   for (int k = 0; k < 20; ++k) ASSERT_EQ(session.advance(), Session::Outcome::Stepped);

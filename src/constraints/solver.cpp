@@ -411,6 +411,7 @@ void ConstraintSolver::markCycle() {
 }
 
 void ConstraintSolver::rewindCycle() {
+  ZSCULPT_ASSERT(markedTurn_.size() == planes_.size(), "rewindCycle() without its markCycle()");
   for (size_t q = 0; q < planes_.size(); ++q) {
     planes_[q].turn = markedTurn_[q];
     planes_[q].hint = markedHint_[q];

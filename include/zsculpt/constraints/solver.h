@@ -171,10 +171,11 @@ class ConstraintSolver {
   void save();
   void restore();
   /// Forgets every normal's turning record (what it lost, whether it stopped): after the
-  /// state was set or a cycle rolled back.
+  /// state was set anew.
   void forgetTurning();
   /// Marks the start of a cycle: every normal's turning record and orientation hint and the
-  /// unknowns (the warm start), for rewindCycle() to put back when the cycle is retaken.
+  /// unknowns (the warm start), for rewindCycle() to put back when the cycle is retaken or
+  /// rolled back. Not across a setUp().
   void markCycle();
   void rewindCycle();
   /// Those that stopped this cycle, each with its angle from its target (rad).

@@ -75,10 +75,12 @@ struct SimulationSettings {
   /// A constrained normal must end within this angle (rad) of its target.
   double normalTolerance = 1e-10;
   /// Default scheme: the most an edge's length may change in one step, relative to its rest
-  /// length, estimated at each cycle's start from the relative velocity of its ends:
-  /// |v_a - v_b| T / lambda_ab. A faster cycle is split into 2, 4, ... steps of T / n
+  /// length, estimated from the relative velocity of its ends at the cycle's start (measured
+  /// at the end of the cycle before, unless the state changed since): |v_a - v_b| T /
+  /// lambda_ab. A faster cycle is split into 2, 4, ... steps of T / n
   /// (Stepper::setPeriod), and joined again once fewer steps would each change an edge by
-  /// at most half this. Equation 5's T_max bounds the linear motion only; beyond
+  /// at most half this. A cycle whose end asks for more than kRetakeFactor times its steps
+  /// is taken again in as many. Equation 5's T_max bounds the linear motion only; beyond
   /// this strain the springs' nonlinearity lets an undamped model heat up and run away
   /// (docs/reliability.md, "Soak"). 0: never split (the paper's fixed period).
   double substepStrain = 0.2;
