@@ -919,9 +919,10 @@ TEST(Constraints, ADragFlungBesideAHeldNormalKeepsThePinsAndTheModel) {
     if (k >= 1) highest = std::max(highest, sim.diagnostics().kinetic);
     worstPin = std::max(worstPin, (sim.state().position.row(10).transpose() - target).norm());
   }
-  std::printf("kinetic energy at most %.6g J after the fling; drag at most %.3g m off; %d cycles "
-              "retaken\n",
-              highest, worstPin, retakenCycles);
+  std::printf(
+      "kinetic energy at most %.6g J after the fling; drag at most %.3g m off; %d cycles "
+      "retaken\n",
+      highest, worstPin, retakenCycles);
   EXPECT_GE(retakenCycles, 1);
   EXPECT_EQ(yieldedCycles, 0);
   // The fling itself gives 12 J; the ring holds it without gaining more.
@@ -1291,10 +1292,11 @@ TEST(Substeps, ACycleThatRunsAwayWithinItselfIsTakenAgainInMoreSteps) {
   }
   const Vec3 p = sim.diagnostics().momentum;
   const ImpulseLedger& ledger = sim.impulses();
-  std::printf("energy at most %.6g J; %d cycles retaken; %d stop warnings; %d unmet (%d in a "
-              "retaken cycle); |p - ledger| %.3g\n",
-              highest, retaken, stopWarnings, unmetWarnings, unmetInRetaken,
-              (p - ledger.constraints).norm());
+  std::printf(
+      "energy at most %.6g J; %d cycles retaken; %d stop warnings; %d unmet (%d in a "
+      "retaken cycle); |p - ledger| %.3g\n",
+      highest, retaken, stopWarnings, unmetWarnings, unmetInRetaken,
+      (p - ledger.constraints).norm());
   EXPECT_GE(retaken, 1);
   EXPECT_LT(highest, 40.0);
   EXPECT_EQ(stopWarnings, 1);
