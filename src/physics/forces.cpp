@@ -615,73 +615,79 @@ ZSCULPT_KERNEL double angleForces(Index m, const Index* __restrict p, const Inde
 
 // A run of L vertices of one degree with every angle spring on: the arms transposed by slot
 // (arm a of the run's vertex i at a L + i), angle (a, b) = pair k of vertex i at k L + i
-// (its rest angle at rest[k + pairs i]). Same arithmetic as angleCosSin and angleForces,
-// vectorised across the vertices without gathers; runForces sums each vertex's squared
-// excesses in excess2[i] when excess2 is not null.
-ZSCULPT_KERNEL void runCosSin(Index pairs, Index count, const Index* __restrict pairA,
-                              const Index* __restrict pairB, const double* __restrict ax,
-                              const double* __restrict ay, const double* __restrict az,
-                              double* __restrict cosine, double* __restrict sine) {
-  for (Index k = 0; k < pairs; ++k) {
-    const double* __restrict ux = ax + pairA[k] * count;
-    const double* __restrict uy = ay + pairA[k] * count;
-    const double* __restrict uz = az + pairA[k] * count;
-    const double* __restrict wx = ax + pairB[k] * count;
-    const double* __restrict wy = ay + pairB[k] * count;
-    const double* __restrict wz = az + pairB[k] * count;
-    double* __restrict co = cosine + k * count;
-    double* __restrict si = sine + k * count;
-#pragma omp simd
-    for (Index i = 0; i < count; ++i) {
-      co[i] = ux[i] * wx[i] + uy[i] * wy[i] + uz[i] * wz[i];
-      const double cx = uy[i] * wz[i] - uz[i] * wy[i], cy = uz[i] * wx[i] - ux[i] * wz[i],
-                   cz = ux[i] * wy[i] - uy[i] * wx[i];
-      si[i] = std::sqrt(cx * cx + cy * cy + cz * cz);
-    }
-  }
-}
-
+// (its rest angle at rest[k + pairs i]). Per arm slot a, gx.. (degree L) get the sum of its
+// angles' forces (without kappa_theta), vectorised across the vertices without gathers:
+// angleCosSin's cosine and sine, angleForceRows' forces, added in angle order k as the
+// degree's term table lists them (the forces of each angle summed into its two arms at
+// once, rather than stored per angle and summed in a pass of their own). sine gets the
+// sines (k L + i), for the degenerate angles' check; with kEnergy excess2[i] the sum of
+// vertex i's squared excesses. Returns the smallest sine.
 template <bool kEnergy>
-[[gnu::always_inline]] inline double runForceRows(
-    Index pairs, Index count, const Index* __restrict pairA, const Index* __restrict pairB,
-    const double* __restrict ax, const double* __restrict ay, const double* __restrict az,
-    const double* __restrict il, const double* __restrict sine, const double* __restrict cosine,
-    const double* __restrict rest, double* __restrict fax, double* __restrict fay,
-    double* __restrict faz, double* __restrict fbx, double* __restrict fby, double* __restrict fbz,
+[[gnu::always_inline]] inline double runAngleRows(
+    Index pairs, Index count, Index degree, const Index* __restrict pairA,
+    const Index* __restrict pairB, const double* __restrict ax, const double* __restrict ay,
+    const double* __restrict az, const double* __restrict il, const double* __restrict rest,
+    double* __restrict sine, double* __restrict gx, double* __restrict gy, double* __restrict gz,
     double* __restrict excess2) {
   double smallest = 1.0;
   if constexpr (kEnergy)
     for (Index i = 0; i < count; ++i) excess2[i] = 0.0;
+  for (Index i = 0; i < degree * count; ++i) gx[i] = gy[i] = gz[i] = 0.0;
   for (Index k = 0; k < pairs; ++k) {
-    const Index a = pairA[k] * count, b = pairB[k] * count, o = k * count;
+    const Index a = pairA[k] * count, b = pairB[k] * count;
+    const double* __restrict ux = ax + a;
+    const double* __restrict uy = ay + a;
+    const double* __restrict uz = az + a;
+    const double* __restrict iu = il + a;
+    const double* __restrict wx = ax + b;
+    const double* __restrict wy = ay + b;
+    const double* __restrict wz = az + b;
+    const double* __restrict iw = il + b;
+    // Arms a and b differ (a < b): their sums do not overlap.
+    double* __restrict gax = gx + a;
+    double* __restrict gay = gy + a;
+    double* __restrict gaz = gz + a;
+    double* __restrict gbx = gx + b;
+    double* __restrict gby = gy + b;
+    double* __restrict gbz = gz + b;
+    double* __restrict si = sine + k * count;
 #pragma omp simd reduction(min : smallest)
     for (Index i = 0; i < count; ++i) {
-      const double s = sine[o + i], c = cosine[o + i];
+      const double c = ux[i] * wx[i] + uy[i] * wy[i] + uz[i] * wz[i];
+      const double cx = uy[i] * wz[i] - uz[i] * wy[i], cy = uz[i] * wx[i] - ux[i] * wz[i],
+                   cz = ux[i] * wy[i] - uy[i] * wx[i];
+      const double s = std::sqrt(cx * cx + cy * cy + cz * cz);
+      si[i] = s;
       smallest = std::min(smallest, s);
       double excess;
       const double beta = angleBeta(s, c, rest[k + pairs * i], excess);
       if constexpr (kEnergy) excess2[i] += excess * excess;
-      ZSCULPT_ANGLE_FORCE(beta, c, ax[a + i], ay[a + i], az[a + i], il[a + i], ax[b + i],
-                          ay[b + i], az[b + i], il[b + i], fax[o + i], fay[o + i], faz[o + i],
-                          fbx[o + i], fby[o + i], fbz[o + i]);
+      double fa0, fa1, fa2, fb0, fb1, fb2;
+      ZSCULPT_ANGLE_FORCE(beta, c, ux[i], uy[i], uz[i], iu[i], wx[i], wy[i], wz[i], iw[i], fa0,
+                          fa1, fa2, fb0, fb1, fb2);
+      gax[i] += fa0;
+      gay[i] += fa1;
+      gaz[i] += fa2;
+      gbx[i] += fb0;
+      gby[i] += fb1;
+      gbz[i] += fb2;
     }
   }
   return smallest;
 }
 
-ZSCULPT_KERNEL double runForces(Index pairs, Index count, const Index* __restrict pairA,
-                                const Index* __restrict pairB, const double* __restrict ax,
-                                const double* __restrict ay, const double* __restrict az,
-                                const double* __restrict il, const double* __restrict sine,
-                                const double* __restrict cosine, const double* __restrict rest,
-                                double* __restrict fax, double* __restrict fay,
-                                double* __restrict faz, double* __restrict fbx,
-                                double* __restrict fby, double* __restrict fbz,
-                                double* __restrict excess2) {
-  return excess2 ? runForceRows<true>(pairs, count, pairA, pairB, ax, ay, az, il, sine, cosine,
-                                      rest, fax, fay, faz, fbx, fby, fbz, excess2)
-                 : runForceRows<false>(pairs, count, pairA, pairB, ax, ay, az, il, sine, cosine,
-                                       rest, fax, fay, faz, fbx, fby, fbz, excess2);
+// runAngleRows, with the squared excesses when excess2 is not null.
+ZSCULPT_KERNEL double runAngles(Index pairs, Index count, Index degree,
+                                const Index* __restrict pairA, const Index* __restrict pairB,
+                                const double* __restrict ax, const double* __restrict ay,
+                                const double* __restrict az, const double* __restrict il,
+                                const double* __restrict rest, double* __restrict sine,
+                                double* __restrict gx, double* __restrict gy,
+                                double* __restrict gz, double* __restrict excess2) {
+  return excess2 ? runAngleRows<true>(pairs, count, degree, pairA, pairB, ax, ay, az, il, rest,
+                                      sine, gx, gy, gz, excess2)
+                 : runAngleRows<false>(pairs, count, degree, pairA, pairB, ax, ay, az, il, rest,
+                                       sine, gx, gy, gz, excess2);
 }
 
 // Arms of a uniform chunk (L = count vertices from c0, of one degree), by slot: arm a of
@@ -701,33 +707,6 @@ ZSCULPT_KERNEL void slotArms(Index degree, Index count, Index c0, const Index* _
       ay[o + i] = uy;
       az[o + i] = uz;
       length[o + i] = std::sqrt(ux * ux + uy * uy + uz * uz);
-    }
-  }
-}
-
-// Per arm slot a of a run of L vertices, the sum of its angles' forces in angle order (the
-// degree's term table), for all vertices at once.
-ZSCULPT_KERNEL void slotSums(Index degree, Index count, Index maxAngles,
-                             const Index* __restrict start, const Index* __restrict term,
-                             const double* __restrict fx, const double* __restrict fy,
-                             const double* __restrict fz, double* __restrict gx,
-                             double* __restrict gy, double* __restrict gz) {
-  for (Index a = 0; a < degree; ++a) {
-    double* __restrict x = gx + a * count;
-    double* __restrict y = gy + a * count;
-    double* __restrict z = gz + a * count;
-    for (Index i = 0; i < count; ++i) x[i] = y[i] = z[i] = 0.0;
-    for (Index t = start[a]; t < start[a + 1]; ++t) {
-      const Index at = (term[t] % maxAngles) * count + (term[t] >= maxAngles ? maxAngles : 0);
-      const double* __restrict px = fx + at;
-      const double* __restrict py = fy + at;
-      const double* __restrict pz = fz + at;
-#pragma omp simd
-      for (Index i = 0; i < count; ++i) {
-        x[i] += px[i];
-        y[i] += py[i];
-        z[i] += pz[i];
-      }
     }
   }
 }
@@ -1193,16 +1172,11 @@ void ForceKernel::scatterBlock(const Model& model, const Points& position, Point
     const Index pairs = degree * (degree - 1) / 2;
     const Index* pa = pairA_.data() + pairStart_[static_cast<size_t>(degree)];
     const Index* pb = pairB_.data() + pairStart_[static_cast<size_t>(degree)];
-    runCosSin(pairs, count, pa, pb, tx, ty, tz, s.cosine.data(), s.sine.data());
     const double smallest =
-        runForces(pairs, count, pa, pb, tx, ty, tz, tl, s.sine.data(), s.cosine.data(),
-                  restAngle + angleOffsets[v], s.fx.data(), s.fy.data(), s.fz.data(),
-                  s.fx.data() + second, s.fy.data() + second, s.fz.data() + second, excess2);
-    slotSums(degree, count, maxAngles_,
-             armTermStart_.data() + termStart_[static_cast<size_t>(degree)], armTerm_.data(),
-             s.fx.data(), s.fy.data(), s.fz.data(), s.gx.data(), s.gy.data(), s.gz.data());
-    // deposit's products and centre sums for all the run's vertices at once (the angle
-    // forces in fx.. are spent): the same values, leaving deposit the scattered additions.
+        runAngles(pairs, count, degree, pa, pb, tx, ty, tz, tl, restAngle + angleOffsets[v],
+                  s.sine.data(), s.gx.data(), s.gy.data(), s.gz.data(), excess2);
+    // deposit's products and centre sums for all the run's vertices at once (fx.. are free
+    // scratch on this path): the same values, leaving deposit the scattered additions.
     double* cx = s.fx.data();
     double* cy = s.fy.data();
     double* cz = s.fz.data();
