@@ -663,8 +663,8 @@ template <bool kEnergy>
       const double beta = angleBeta(s, c, rest[k + pairs * i], excess);
       if constexpr (kEnergy) excess2[i] += excess * excess;
       double fa0, fa1, fa2, fb0, fb1, fb2;
-      ZSCULPT_ANGLE_FORCE(beta, c, ux[i], uy[i], uz[i], iu[i], wx[i], wy[i], wz[i], iw[i], fa0,
-                          fa1, fa2, fb0, fb1, fb2);
+      ZSCULPT_ANGLE_FORCE(beta, c, ux[i], uy[i], uz[i], iu[i], wx[i], wy[i], wz[i], iw[i], fa0, fa1,
+                          fa2, fb0, fb1, fb2);
       gax[i] += fa0;
       gay[i] += fa1;
       gaz[i] += fa2;
@@ -682,8 +682,8 @@ ZSCULPT_KERNEL double runAngles(Index pairs, Index count, Index degree,
                                 const double* __restrict ax, const double* __restrict ay,
                                 const double* __restrict az, const double* __restrict il,
                                 const double* __restrict rest, double* __restrict sine,
-                                double* __restrict gx, double* __restrict gy,
-                                double* __restrict gz, double* __restrict excess2) {
+                                double* __restrict gx, double* __restrict gy, double* __restrict gz,
+                                double* __restrict excess2) {
   return excess2 ? runAngleRows<true>(pairs, count, degree, pairA, pairB, ax, ay, az, il, rest,
                                       sine, gx, gy, gz, excess2)
                  : runAngleRows<false>(pairs, count, degree, pairA, pairB, ax, ay, az, il, rest,
@@ -709,6 +709,61 @@ ZSCULPT_KERNEL void slotArms(Index degree, Index count, Index c0, const Index* _
       length[o + i] = std::sqrt(ux * ux + uy * uy + uz * uz);
     }
   }
+}
+
+// slotArms and radialRows in one loop, for a uniform chunk with angle springs: arm j = a L + i
+// of half-edge h0 + j (edge[j]) becomes its unit vector in ax.., its inverse length in il,
+// the radial spring's force on v in gx.., the same operations as the two passes (the
+// length is not stored: nothing after needs it). With kEnergy the spring's energy goes to
+// energy[j].
+template <bool kEnergy>
+[[gnu::always_inline]] inline void slotArmsRadialRows(
+    Index degree, Index count, Index c0, const Index* __restrict neighbour,
+    const double* __restrict r, const Index* __restrict edge, const double* __restrict edgeKappa,
+    const double* __restrict restLength, double* __restrict ax, double* __restrict ay,
+    double* __restrict az, double* __restrict il, double* __restrict gx, double* __restrict gy,
+    double* __restrict gz, double* __restrict energy) {
+  for (Index a = 0; a < degree; ++a) {
+    const Index o = a * count;
+#pragma omp simd
+    for (Index i = 0; i < count; ++i) {
+      const Index w = neighbour[o + i], v = c0 + i, j = o + i;
+      const double ux = r[3 * w] - r[3 * v], uy = r[3 * w + 1] - r[3 * v + 1],
+                   uz = r[3 * w + 2] - r[3 * v + 2];
+      const double l = std::sqrt(ux * ux + uy * uy + uz * uz);
+      const double kappa = edgeKappa[edge[j]], rest = restLength[edge[j]];
+      const bool positive = l > 0.0;
+      const double safe = select(positive, l, 1.0);
+      const double stretched = select(positive, std::max(kappa * (l - rest) / safe, -kappa), 0.0);
+      const double coefficient = select(kappa == 0.0, 0.0, select(rest == 0.0, kappa, stretched));
+      const double inv = select(positive, 1.0 / safe, 0.0);
+      if constexpr (kEnergy) energy[j] = radialEnergy(l, kappa, rest);
+      gx[j] = coefficient * ux;
+      gy[j] = coefficient * uy;
+      gz[j] = coefficient * uz;
+      ax[j] = ux * inv;
+      ay[j] = uy * inv;
+      az[j] = uz * inv;
+      il[j] = inv;
+    }
+  }
+}
+
+// slotArmsRadialRows, with the energies when energy is not null.
+ZSCULPT_KERNEL void slotArmsRadial(Index degree, Index count, Index c0,
+                                   const Index* __restrict neighbour, const double* __restrict r,
+                                   const Index* __restrict edge, const double* __restrict edgeKappa,
+                                   const double* __restrict restLength, double* __restrict ax,
+                                   double* __restrict ay, double* __restrict az,
+                                   double* __restrict il, double* __restrict gx,
+                                   double* __restrict gy, double* __restrict gz,
+                                   double* __restrict energy) {
+  if (energy)
+    slotArmsRadialRows<true>(degree, count, c0, neighbour, r, edge, edgeKappa, restLength, ax, ay,
+                             az, il, gx, gy, gz, energy);
+  else
+    slotArmsRadialRows<false>(degree, count, c0, neighbour, r, edge, edgeKappa, restLength, ax, ay,
+                              az, il, gx, gy, gz, energy);
 }
 
 // The slot sums of a run of L vertices scaled by each vertex's kappa_theta (the force on
@@ -1216,7 +1271,13 @@ void ForceKernel::scatterBlock(const Model& model, const Points& position, Point
     const Index h0 = off[c0], arms = off[c1] - h0, count = c1 - c0;
     // Arms r_w - r_v and their lengths, then the radial springs (section 5.1) of every arm:
     // the force on v, rounding for rounding radialSpringForce's.
-    if (uniform) {
+    bool chunkAngles = false;
+    for (Index v = c0; v < c1 && !chunkAngles; ++v) chunkAngles = kappaTheta[v] != 0.0;
+    if (uniform && chunkAngles) {
+      slotArmsRadial(uniform, count, c0, nbr + h0, r, edge_.data() + h0, edgeKappa_.data(),
+                     prop.restLength.data(), ax, ay, az, il, s.gx.data(), s.gy.data(), s.gz.data(),
+                     energy);
+    } else if (uniform) {
       slotArms(uniform, count, c0, nbr + h0, r, ax, ay, az, len);
     } else {
       for (Index v = c0; v < c1; ++v) {
@@ -1233,12 +1294,11 @@ void ForceKernel::scatterBlock(const Model& model, const Points& position, Point
       Eigen::Map<Eigen::ArrayXd> lengths(len, arms);
       lengths = lengths.sqrt();
     }
-    bool chunkAngles = false;
-    for (Index v = c0; v < c1 && !chunkAngles; ++v) chunkAngles = kappaTheta[v] != 0.0;
-    if (chunkAngles)
+    // (slotArmsRadial took a uniform chunk's radial springs with its arms.)
+    if (chunkAngles && !uniform)
       radialBatch(arms, edge_.data() + h0, edgeKappa_.data(), prop.restLength.data(), ax, ay, az,
                   len, il, s.gx.data(), s.gy.data(), s.gz.data(), energy);
-    else
+    else if (!chunkAngles)
       radialOnlyBatch(arms, edge_.data() + h0, edgeKappa_.data(), prop.restLength.data(), ax, ay,
                       az, len, s.gx.data(), s.gy.data(), s.gz.data(), energy);
     if (withEnergy)
