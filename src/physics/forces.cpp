@@ -450,6 +450,28 @@ constexpr Index kGroupVertices = 1024;
   return select(positive, 1.0 / select(positive, l, 1.0), 0.0);
 }
 
+// One arm j's radial spring (r_w - r_v = u, of length l), as radialRows and
+// slotArmsRadialRows write it: the force on v to gx.., the unit arm to ax.., 1 / l to il,
+// and with kEnergy the spring's energy to energy[j].
+template <bool kEnergy>
+[[gnu::always_inline]] inline void radialArm(Index j, double ux, double uy, double uz, double l,
+                                             double kappa, double rest, double* __restrict ax,
+                                             double* __restrict ay, double* __restrict az,
+                                             double* __restrict il, double* __restrict gx,
+                                             double* __restrict gy, double* __restrict gz,
+                                             double* __restrict energy) {
+  const double coefficient = radialCoefficient(l, kappa, rest);
+  const double inv = inverseLength(l);
+  if constexpr (kEnergy) energy[j] = radialEnergy(l, kappa, rest);
+  gx[j] = coefficient * ux;
+  gy[j] = coefficient * uy;
+  gz[j] = coefficient * uz;
+  ax[j] = ux * inv;
+  ay[j] = uy * inv;
+  az[j] = uz * inv;
+  il[j] = inv;
+}
+
 // Radial springs and arms of one chunk, per half-edge j (from v to w, edge e), after
 // squaredLength[j] = |r_w - r_v|^2 was turned into the length: the force on v,
 // kappa (l - lambda) / l (r_w - r_v), which is radialSpringForce's force on v rounding for
@@ -467,18 +489,8 @@ template <bool kEnergy>
     double* __restrict energy) {
 #pragma omp simd
   for (Index j = 0; j < count; ++j) {
-    const double kappa = edgeKappa[edge[j]], rest = restLength[edge[j]], l = length[j];
-    const double coefficient = radialCoefficient(l, kappa, rest);
-    const double inv = inverseLength(l);
-    if constexpr (kEnergy) energy[j] = radialEnergy(l, kappa, rest);
-    const double ux = ax[j], uy = ay[j], uz = az[j];
-    gx[j] = coefficient * ux;
-    gy[j] = coefficient * uy;
-    gz[j] = coefficient * uz;
-    ax[j] = ux * inv;
-    ay[j] = uy * inv;
-    az[j] = uz * inv;
-    il[j] = inv;
+    radialArm<kEnergy>(j, ax[j], ay[j], az[j], length[j], edgeKappa[edge[j]],
+                       restLength[edge[j]], ax, ay, az, il, gx, gy, gz, energy);
   }
 }
 
@@ -741,17 +753,8 @@ template <bool kEnergy>
       const double ux = r[3 * w] - r[3 * v], uy = r[3 * w + 1] - r[3 * v + 1],
                    uz = r[3 * w + 2] - r[3 * v + 2];
       const double l = std::sqrt(ux * ux + uy * uy + uz * uz);
-      const double kappa = edgeKappa[edge[j]], rest = restLength[edge[j]];
-      const double coefficient = radialCoefficient(l, kappa, rest);
-      const double inv = inverseLength(l);
-      if constexpr (kEnergy) energy[j] = radialEnergy(l, kappa, rest);
-      gx[j] = coefficient * ux;
-      gy[j] = coefficient * uy;
-      gz[j] = coefficient * uz;
-      ax[j] = ux * inv;
-      ay[j] = uy * inv;
-      az[j] = uz * inv;
-      il[j] = inv;
+      radialArm<kEnergy>(j, ux, uy, uz, l, edgeKappa[edge[j]], restLength[edge[j]], ax, ay, az,
+                         il, gx, gy, gz, energy);
     }
   }
 }
