@@ -114,9 +114,11 @@ class ForceKernel {
   /// Every property may have changed.
   void rebuild(const Model& model);
 
-  /// force = the internal forces at `position` (every row overwritten). Uses up to
-  /// `threads` threads (0: maxThreads), or the current team inside a parallel region.
-  void compute(const Model& model, const Points& position, Points& force, int threads = 0);
+  /// force = the internal forces at `position` (every row overwritten), and energy() with
+  /// `withEnergy`. Uses up to `threads` threads (0: maxThreads), or the current team inside a
+  /// parallel region.
+  void compute(const Model& model, const Points& position, Points& force, int threads = 0,
+               bool withEnergy = true);
 
   /// Phase 1 (worksharing over blocks, ends with a barrier): every block's own rows of
   /// `force` and its halo buffer; with `withEnergy` also the energy() at `position` (a few
@@ -127,7 +129,8 @@ class ForceKernel {
 
   /// The radial and angular energy at the position of the last compute() or scatter() with
   /// `withEnergy`, taken in the same pass as the forces (gravity is left at 0). Each block sums its
-  /// springs' energies vertex by vertex, the blocks are added in block order: the same bits on any
+  /// springs' energies in eight interleaved running sums (forces.cpp, addToLanes) added in a fixed
+  /// order, the blocks are added in block order: the same bits on any
   /// thread count. It agrees with potentialEnergy() to rounding (its sums run in another
   /// order, and its angles come from unit arms), so the energy of a rest shape is of the
   /// order of kappa_theta 1e-32 here where potentialEnergy() gives exactly 0.
