@@ -887,6 +887,44 @@ TEST(ForceKernel, WithAngleSpringsAgreesWithTheReference) {
   }
 }
 
+TEST(ForceKernel, ItsAnglesAreAtan2sToAFewUnitsInTheLastPlace) {
+  // 2000 separate V's (a centre, two arms of lengths 1 and 1.3) opening from near 0 to near pi
+  // in planes turning about the first arm, centres first so that they make uniform chunks (the
+  // run path). Each rest angle is the angle less 1e-6, so the force is kappa 1e-6 / l and an
+  // error in the kernel's angle (its own arctangent, not std::atan2) of e shows as kappa e / l:
+  // the kernel's angle must be std::atan2's to within 4e-15 rad, a few units in the last place
+  // of angles up to pi, at every angle, the reduction's boundaries (pi/8, 3 pi/8, ...) included.
+  const Index n = 2000;
+  Points x(3 * n, 3);
+  std::vector<std::array<Index, 2>> edges;
+  for (Index k = 0; k < n; ++k) {
+    const double theta = 1e-3 + (std::numbers::pi - 2e-3) * static_cast<double>(k) / (n - 1);
+    const double phi = 0.37 * static_cast<double>(k);
+    const Vec3 centre(3.0 * static_cast<double>(k), 0.0, 0.0);
+    x.row(k) = centre;
+    x.row(n + 2 * k) = centre + Vec3(1.0, 0.0, 0.0);
+    x.row(n + 2 * k + 1) =
+        centre + 1.3 * Vec3(std::cos(theta), std::sin(theta) * std::cos(phi),
+                            std::sin(theta) * std::sin(phi));
+    edges.push_back({k, n + 2 * k});
+    edges.push_back({k, n + 2 * k + 1});
+  }
+  UniformProperties values;
+  values.stiffness = 0.0;  // the angle springs alone
+  values.angularStiffness = 2.0;
+  Model model = Model::fromMesh(Mesh(x, {}, edges), values);
+  ASSERT_EQ(model.angles.size(), n);
+  model.properties.restAngle.array() -= 1e-6;
+  const Points kernel = kernelForces(model, x), reference = referenceForces(model, x);
+  double worst = 0.0;
+  for (Index k = 0; k < n; ++k) {
+    const Index end = n + 2 * k + 1;
+    ASSERT_GT(reference.row(end).norm(), 0.5 * 2.0 * 1e-6 / 1.3) << k;
+    worst = std::max(worst, (kernel.row(end) - reference.row(end)).norm() * 1.3 / 2.0);
+  }
+  EXPECT_LT(worst, 4e-15);
+}
+
 TEST(ForceKernel, AnyAngleTableLayoutGivesTheSameForces) {
   // A table in another order than buildAngleTable's (each vertex's angles reversed, arms
   // swapped) takes the general path; a table with an arm that is no edge falls back to the
