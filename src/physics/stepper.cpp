@@ -536,8 +536,9 @@ bool Stepper::accelerationRows(Index block, const Points& internal, const Points
 
 void Stepper::computeAcceleration(const Points& position, const Points& external,
                                   std::span<const double> share) {
-  // Serial form for the exact and implicit schemes.
-  forces_.compute(model_, position, internal_, threads_);
+  // Serial form for the exact and implicit schemes. No energy: internalEnergy() reads the
+  // kernel's only after a default step.
+  forces_.compute(model_, position, internal_, threads_, false);
   for (Index b = 0; b < forces_.numBlocks(); ++b)
     accelerationRows(b, internal_, external, share, true);
   totalForceReady_ = true;
