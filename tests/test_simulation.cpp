@@ -1446,6 +1446,35 @@ TEST(Simulation, RemovedLoadsAndPinsLeaveNoForceBehind) {
   EXPECT_TRUE(sim.impulses().constraints == before.constraints);
 }
 
+TEST(Simulation, ALoadThatEndsWhileAnotherActsLeavesNothingOnItsVertex) {
+  // A cycle clears only the rows the last cycle's loads wrote (externalRows_): when the force
+  // on vertex 20 ends and the torque on vertex 30 goes on, row 20 must be cleared although no
+  // load writes it any more, and only the torque's vertex and ring may be loaded.
+  const Model model = makeModel(makeTorus(8, 5));
+  Simulation sim(model, settingsFor(model, 0.4));
+  const double t = sim.period();
+  sim.addForce(TimedLoad{20, Vec3(2, 0, 1), 0.0, 5.5 * t});
+  sim.addTorque(TimedLoad{30, Vec3(0, 0, 1.3), 0.0, 100.0});
+  std::vector<bool> ring(static_cast<size_t>(model.mesh.numVertices()), false);
+  ring[30] = true;
+  for (const Index w : model.mesh.vertexNeighbors(30)) ring[static_cast<size_t>(w)] = true;
+  ASSERT_FALSE(ring[20]);
+  for (int k = 0; k < 12; ++k) {
+    sim.step();
+    const Points& external = sim.externalForces();
+    // (Cycle 5 holds the end: a split cycle shows its last step's loads, none.)
+    if (k != 5) {
+      EXPECT_EQ(external.row(20).isZero(0.0), k > 5) << "cycle " << k;
+    }
+    for (Index v = 0; v < model.mesh.numVertices(); ++v) {
+      if (v != 20 && !ring[static_cast<size_t>(v)]) {
+        ASSERT_TRUE(external.row(v).isZero(0.0)) << "cycle " << k << " vertex " << v;
+      }
+    }
+    EXPECT_GT(external.row(30).norm(), 0.0) << "cycle " << k;
+  }
+}
+
 TEST(Simulation, ALargeModelThatDivergesIsCaughtAndRolledBack) {
   // 40000 vertices: the cycle's finiteness check runs on both threads, in parts. Symplectic
   // Euler at three times its stable limit blows up; the cycle that makes the state

@@ -236,12 +236,23 @@ void Simulation::clearLoads() {
   torques_.clear();
 }
 
-void Simulation::gatherLoads(double t, const Points& position, Points& out) {
-  out.setZero();
+void Simulation::gatherLoads(double t, const Points& position, Points& out,
+                             std::vector<Index>* rows) {
+  if (rows) {
+    for (const Index row : *rows) out.row(row).setZero();
+    rows->clear();
+  } else {
+    out.setZero();
+  }
+  auto wrote = [&](Index row) {
+    if (rows) rows->push_back(row);
+  };
   const double period = stepper_->period();
   for (const TimedLoad& f : forces_)
-    if (const double share = f.shareOf(t, period); share > 0.0)
+    if (const double share = f.shareOf(t, period); share > 0.0) {
       out.row(f.vertex) += share * f.value.transpose();
+      wrote(f.vertex);
+    }
   const Mesh& mesh = model_.mesh;
   for (const TimedLoad& torque : torques_) {
     const double share = torque.shareOf(t, period);
@@ -255,7 +266,15 @@ void Simulation::gatherLoads(double t, const Points& position, Points& out) {
                    std::span<const Vec3>(armBuffer_.data(), k), share * torque.value,
                    std::span<Vec3>(forceBuffer_.data(), k), onCentre);
     out.row(torque.vertex) += onCentre.transpose();
-    for (size_t q = 0; q < k; ++q) out.row(neighbours[q]) += forceBuffer_[q].transpose();
+    wrote(torque.vertex);
+    for (size_t q = 0; q < k; ++q) {
+      out.row(neighbours[q]) += forceBuffer_[q].transpose();
+      wrote(neighbours[q]);
+    }
+  }
+  if (rows) {
+    std::sort(rows->begin(), rows->end());
+    rows->erase(std::unique(rows->begin(), rows->end()), rows->end());
   }
 }
 
@@ -498,7 +517,7 @@ void Simulation::subCycle(const Points& start) {
   // constraints): on a large model, clearing them again every cycle was a pass of its own.
   const bool loaded = !forces_.empty() || !torques_.empty();
   if (loaded || !externalZero_) {
-    gatherLoads(state_.time, state_.position, external_);
+    gatherLoads(state_.time, state_.position, external_, &externalRows_);
     externalZero_ = !loaded;
   }
   if (!rigidActive_ && constraints_.empty()) {
@@ -519,8 +538,12 @@ void Simulation::subCycle(const Points& start) {
     throw DivergenceError("the simulation diverged at t = " + std::to_string(state_.time) +
                           " s (the state became non-finite)");
   // The loads are held over the step: their work is F . dx exactly.
-  if (!forces_.empty() || !torques_.empty())
-    loadWork_ += (external_.array() * (state_.position - start).array()).sum();
+  if (!forces_.empty() || !torques_.empty()) {
+    double work = 0.0;
+    for (const Index i : externalRows_)
+      work += external_.row(i).dot(state_.position.row(i) - start.row(i));
+    loadWork_ += work;
+  }
   // Without rigid motion the cycle ends where the stepper's last step ended: the plain cycle
   // steps state_ itself, a constrained one takes its last trial's positions (the velocity
   // correction moves no vertex). With it, the stepper's forces are its end forces turned with
@@ -893,7 +916,9 @@ void Simulation::addToLedger(const Vec3& centreHint, const Points& velocityDelta
   // and the pass over the vertices are for them and for the constraints.
   if (externalZero_ && constraints_.empty()) return;
   const Vec3 centre = rigidActive_ ? centreHint : weightedCentre(mass, start, stepper_->threads());
-  for (Index i = 0; i < start.rows() && !externalZero_; ++i) {
+  // In increasing row order, as a loop over every vertex would add them (the others are +0).
+  for (size_t k = 0; k < externalRows_.size() && !externalZero_; ++k) {
+    const Index i = externalRows_[k];
     const Vec3 arm = start.row(i).transpose() - centre;
     const Vec3 load = external_.row(i).transpose();
     if (!load.isZero(0.0)) {

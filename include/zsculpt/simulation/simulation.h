@@ -198,7 +198,10 @@ class Simulation {
   void allPropertiesChanged();
 
  private:
-  void gatherLoads(double t, const Points& position, Points& out);
+  // out = the loads at time t. With `rows`: only the rows it lists (those the last gathering
+  // into out wrote) are cleared, and it gets the rows written now, sorted and once each.
+  void gatherLoads(double t, const Points& position, Points& out,
+                   std::vector<Index>* rows = nullptr);
   // SimulationSettings::substepStrain: splits or joins the coming cycle's steps.
   void chooseSubsteps();
   [[nodiscard]] bool substepping() const;
@@ -247,6 +250,9 @@ class Simulation {
   std::vector<TimedLoad> torques_;
   Points external_;
   bool externalZero_ = true;  // external_ is all zero (no loads): a cycle need not clear it
+  // The rows of external_ the loads wrote (sorted, once each); every other row is +0. A load
+  // on a few vertices of a large model costs the cycle passes over those rows, not over all.
+  std::vector<Index> externalRows_;
   std::vector<Vec3> armBuffer_, forceBuffer_;
 
   // Semi-rigid motion (section 4.3).
