@@ -187,17 +187,6 @@ void copyPoints(const Points& from, Points& to, int threads) {
   });
 }
 
-// out = a + b, element by element.
-void addPoints(const Points& a, const Points& b, Points& out, int threads) {
-  out.resize(a.rows(), 3);
-  const double* x = a.data();
-  const double* y = b.data();
-  double* z = out.data();
-  forEachPart<8>(a.size(), threads, 100000, [&](int, Index begin, Index end) {
-    for (Index k = begin; k < end; ++k) z[k] = x[k] + y[k];
-  });
-}
-
 // The centre of mass sum_i m_i x_i / sum_i m_i, summed in 64 fixed parts added in order: the
 // same bits on any thread count.
 Vec3 weightedCentre(const VectorX& mass, const Points& x, int threads) {
@@ -575,7 +564,17 @@ void Simulation::runTrial(bool constrained, bool first) {
   trial_.time = elasticStart_.time;
   const Points* load = &external_;
   if (constrained) {
-    addPoints(external_, constraintForce_, loadForce_, threads);
+    // loadForce_ = external_ + constraintForce_, row by row where either can be nonzero (the
+    // loads' rows and the support's): every other row is +0 in both, and is in loadForce_.
+    for (const Index row : loadForceRows_) loadForce_.row(row).setZero();
+    loadForceRows_.assign(externalRows_.begin(), externalRows_.end());
+    const auto support = solver_.support();
+    loadForceRows_.insert(loadForceRows_.end(), support.begin(), support.end());
+    std::sort(loadForceRows_.begin(), loadForceRows_.end());
+    loadForceRows_.erase(std::unique(loadForceRows_.begin(), loadForceRows_.end()),
+                         loadForceRows_.end());
+    for (const Index row : loadForceRows_)
+      loadForce_.row(row) = external_.row(row) + constraintForce_.row(row);
     load = &loadForce_;
   }
   if (allRigid_) {
@@ -661,7 +660,7 @@ void Simulation::finishRigid() {
   if (torques_.empty()) {
     totalForce_ = baseForce_ + external_;
   } else {
-    gatherLoads(elasticStart_.time, trial_.position, loadForce_);
+    gatherLoads(elasticStart_.time, trial_.position, loadForce_, &loadForceRows_);
     totalForce_ = baseForce_ + loadForce_;
   }
   // Pins' virtual forces are held over the cycle like any load; planes' couples act at its
