@@ -210,6 +210,7 @@ Vec3 weightedCentre(const VectorX& mass, const Points& x, int threads) {
 void Simulation::addForce(const TimedLoad& force) {
   checkLoad(force, model_.mesh.numVertices(), "force");
   forces_.push_back(force);
+  reserveLoadRows();
 }
 
 void Simulation::addTorque(const TimedLoad& torque) {
@@ -218,6 +219,15 @@ void Simulation::addTorque(const TimedLoad& torque) {
     throw InvalidInputError("torque at vertex " + std::to_string(torque.vertex) +
                             ": an isolated vertex has no neighbours to carry a torque");
   torques_.push_back(torque);
+  reserveLoadRows();
+}
+
+void Simulation::reserveLoadRows() {
+  size_t rows = forces_.size();
+  for (const TimedLoad& torque : torques_)
+    rows += 1 + static_cast<size_t>(model_.mesh.valence(torque.vertex));
+  externalRows_.reserve(rows);
+  loadForceRows_.reserve(rows + solver_.support().size());
 }
 
 void Simulation::clearLoads() {
@@ -726,6 +736,7 @@ void Simulation::syncSupport() {
   constraintForce_.setZero();
   constraintForceZero_ = true;
   solver_.setUp(model_.mesh, constraints_);
+  reserveLoadRows();
   constraintRevision_ = constraints_.revision();
   responseValid_ = false;
   const Index s = static_cast<Index>(solver_.support().size());

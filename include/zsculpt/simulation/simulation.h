@@ -202,6 +202,9 @@ class Simulation {
   // into out wrote) are cleared, and it gets the rows written now, sorted and once each.
   void gatherLoads(double t, const Points& position, Points& out,
                    std::vector<Index>* rows = nullptr);
+  // Reserves the row lists for the most rows the loads and the support can write, so that
+  // no cycle grows them (called when a load is added and when the support changes).
+  void reserveLoadRows();
   // SimulationSettings::substepStrain: splits or joins the coming cycle's steps.
   void chooseSubsteps();
   [[nodiscard]] bool substepping() const;
