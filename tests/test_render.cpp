@@ -20,6 +20,7 @@
 #include <numbers>
 #include <string>
 
+#include "support/allocation_counter.h"
 #include "zsculpt/core/errors.h"
 #include "zsculpt/mesh/builtin.h"
 #include "zsculpt/physics/properties.h"
@@ -31,27 +32,6 @@
 #include "zsculpt/render/plot.h"
 #include "zsculpt/render/renderer.h"
 #include "zsculpt/subdivision/subdivision.h"
-
-// Counts operator new calls while `gCounting` is set, to check the per-frame path.
-// GCC 12 flags free() on memory from a replaced operator new as mismatched wherever it
-// inlines the pair; the replacement below pairs malloc with free, so silence it here.
-#pragma GCC diagnostic ignored "-Wmismatched-new-delete"
-namespace {
-std::atomic<bool> gCounting{false};
-std::atomic<long> gAllocations{0};
-}  // namespace
-
-void* operator new(std::size_t size) {
-  if (gCounting.load(std::memory_order_relaxed)) gAllocations.fetch_add(1);
-  if (void* p = std::malloc(size == 0 ? 1 : size)) return p;
-  throw std::bad_alloc();
-}
-void operator delete(void* p) noexcept {
-  std::free(p);
-}
-void operator delete(void* p, std::size_t) noexcept {
-  std::free(p);
-}
 
 namespace zsculpt::render {
 namespace {

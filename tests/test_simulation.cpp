@@ -4,43 +4,19 @@
 #include <gtest/gtest.h>
 
 #include <algorithm>
-#include <atomic>
 #include <cmath>
 #include <cstdint>
 #include <cstdio>
-#include <cstdlib>
 #include <iostream>
 #include <limits>
-#include <new>
 #include <numbers>
 
+#include "support/allocation_counter.h"
 #include "zsculpt/core/errors.h"
 #include "zsculpt/mesh/builtin.h"
 #include "zsculpt/physics/diagnostics.h"
 #include "zsculpt/physics/matrices.h"
 #include "zsculpt/simulation/simulation.h"
-
-// Counts operator new calls while `gCounting` is set, to check the per-cycle path (as
-// test_render.cpp checks the per-frame one). GCC 12 flags free() on memory from a replaced
-// operator new as mismatched wherever it inlines the pair; the replacement pairs malloc
-// with free, so silence it here.
-#pragma GCC diagnostic ignored "-Wmismatched-new-delete"
-namespace {
-std::atomic<bool> gCounting{false};
-std::atomic<long> gAllocations{0};
-}  // namespace
-
-void* operator new(std::size_t size) {
-  if (gCounting.load(std::memory_order_relaxed)) gAllocations.fetch_add(1);
-  if (void* p = std::malloc(size == 0 ? 1 : size)) return p;
-  throw std::bad_alloc();
-}
-void operator delete(void* p) noexcept {
-  std::free(p);
-}
-void operator delete(void* p, std::size_t) noexcept {
-  std::free(p);
-}
 
 using namespace zsculpt;
 
