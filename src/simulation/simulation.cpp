@@ -1,6 +1,7 @@
 #include "zsculpt/simulation/simulation.h"
 
 #include <algorithm>
+#include <iterator>
 #include <array>
 #include <cmath>
 #include <cstdint>
@@ -576,13 +577,12 @@ void Simulation::runTrial(bool constrained, bool first) {
   if (constrained) {
     // loadForce_ = external_ + constraintForce_, row by row where either can be nonzero (the
     // loads' rows and the support's): every other row is +0 in both, and is in loadForce_.
+    // Both lists are sorted and unique (the solver's support is): their union is too.
     for (const Index row : loadForceRows_) loadForce_.row(row).setZero();
-    loadForceRows_.assign(externalRows_.begin(), externalRows_.end());
+    loadForceRows_.clear();
     const auto support = solver_.support();
-    loadForceRows_.insert(loadForceRows_.end(), support.begin(), support.end());
-    std::sort(loadForceRows_.begin(), loadForceRows_.end());
-    loadForceRows_.erase(std::unique(loadForceRows_.begin(), loadForceRows_.end()),
-                         loadForceRows_.end());
+    std::set_union(externalRows_.begin(), externalRows_.end(), support.begin(), support.end(),
+                   std::back_inserter(loadForceRows_));
     for (const Index row : loadForceRows_)
       loadForce_.row(row) = external_.row(row) + constraintForce_.row(row);
     load = &loadForce_;
