@@ -760,8 +760,17 @@ void Simulation::coupledStep() {
   }
 
   const int threads = stepper_->threads();
-  copyPoints(state_.position, elasticStart_.position, threads);
-  copyPoints(rigidActive_ ? deformation_ : state_.velocity, elasticStart_.velocity, threads);
+  // Without rigid motion the start state moves into elasticStart_ and the last trial into
+  // state_ at the end (pointer swaps, not copies: 4 of the 8 full-model copies of a step
+  // with two trials). In between state_ holds no state and nothing reads it; a throw in
+  // between is rolled back from lastGood_ (step()).
+  if (rigidActive_) {
+    copyPoints(state_.position, elasticStart_.position, threads);
+    copyPoints(deformation_, elasticStart_.velocity, threads);
+  } else {
+    elasticStart_.position.swap(state_.position);
+    elasticStart_.velocity.swap(state_.velocity);
+  }
   elasticStart_.time = state_.time;
   if (rigidActive_) {
     start_ = massProperties(mass, state_.position, threads);
@@ -782,10 +791,10 @@ void Simulation::coupledStep() {
   report_ = ConstraintReport{};
   if (constrained) {
     const auto support = solver_.support();
-    solver_.beginStep(model_.mesh, constraints_, state_.position, mass, stepper_->system().omega2(),
-                      t);
+    solver_.beginStep(model_.mesh, constraints_, elasticStart_.position, mass,
+                      stepper_->system().omega2(), t);
     for (size_t a = 0; a < support.size(); ++a) {
-      supportStart_.row(static_cast<Index>(a)) = state_.position.row(support[a]);
+      supportStart_.row(static_cast<Index>(a)) = elasticStart_.position.row(support[a]);
       supportChi_[a] = chi_[static_cast<size_t>(support[a])];
     }
     if (rigidActive_) {
@@ -884,8 +893,8 @@ void Simulation::coupledStep() {
   if (rigidActive_) {
     finishRigid();
   } else {
-    copyPoints(trial_.position, state_.position, threads);
-    copyPoints(trial_.velocity, state_.velocity, threads);
+    state_.position.swap(trial_.position);
+    state_.velocity.swap(trial_.velocity);
     baseForceValid_ = false;
   }
   state_.time = trial_.time;
