@@ -1539,6 +1539,54 @@ TEST(Stepper, ABegunStepIsTheWholeStepAndADroppedOneLeavesNoTrace) {
     }
 }
 
+TEST(Stepper, ATrialBegunFromItsStartIsTheCopysBeginBitForBit) {
+  // A constrained cycle begins every trial from the cycle's start into a trial state
+  // (beginStep(from, state)) instead of copying the start in first. Under the loads of a
+  // first and a dropped-and-retaken second trial, steps that keep their first kick and
+  // steps that make it, that must be the in-place begin of a copy bit for bit, leave the
+  // start untouched, and give the start's time; the other schemes copy.
+  const TrialTorus t = trialTorus(0.8);
+  const Model& model = t.model;
+  const Points &first = t.first, &second = t.second;
+  for (Scheme scheme : {Scheme::Default, Scheme::SymplecticEuler})
+    for (bool drift : {true, false}) {
+      if (scheme != Scheme::Default && !drift) continue;
+      const std::string label = std::string(schemeName(scheme)) + (drift ? "" : " no drift filter");
+      StepperOptions options;
+      options.driftFilter = drift;
+      options.threads = 2;
+      Stepper outOfPlace(model, scheme, t.dt, options), inPlace(model, scheme, t.dt, options);
+      State start = perturbed(model, 0.05, 31), copy = start;
+      State trial = State::atRest(model.mesh);
+      for (int k = 0; k < 3; ++k) {
+        const State before = start;
+        const Points& load = k == 1 ? second : first;  // the kick is kept at k = 2 only
+        for (int trialNumber = 0; trialNumber < 2; ++trialNumber) {  // one dropped, one kept
+          const Points* loads = trialNumber == 0 ? &first : &load;
+          if (trialNumber > 0) {
+            outOfPlace.rewind();
+            inPlace.rewind();
+            copy = start;
+          }
+          trial.position.setConstant(7.0);  // what the trial held must not matter
+          trial.velocity.setConstant(-3.0);
+          outOfPlace.beginStep(start, trial, *loads);
+          inPlace.beginStep(copy, *loads);
+          ASSERT_TRUE(trial.position == copy.position && trial.velocity == copy.velocity)
+              << label << " step " << k;
+          EXPECT_EQ(trial.time, start.time) << label;
+          EXPECT_TRUE(start.position == before.position && start.velocity == before.velocity)
+              << label << ": the start changed";
+        }
+        outOfPlace.finishStep(trial, load);
+        inPlace.finishStep(copy, load);
+        ASSERT_TRUE(trial.position == copy.position && trial.velocity == copy.velocity) << label;
+        EXPECT_EQ(outOfPlace.keptKick(), inPlace.keptKick()) << label << " step " << k;
+        start = trial;
+      }
+    }
+}
+
 TEST(Stepper, WhatCannotBeRewoundIsEvaluatedAfresh) {
   // rewind() gives back the start forces of the last step, finished or begun, once. A second
   // rewind, a rewind after startAt() (whose forces are no step's end), or a new period

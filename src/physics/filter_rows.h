@@ -28,29 +28,31 @@ struct Inputs {
 /// sums (B^T M x then (Omega^2 B)^T M x, 4 x 3 each, row by row) to partial; one that sums
 /// only the second leaves the first 12 alone.
 struct Kernels {
-  /// The first kick: kick = half a - filter (W a), then v = v e^{-GT/2} + kick, summed (the
-  /// velocity pass fused in, where the kick was not kept from the last step).
+  /// The first kick: kick = half a - filter (W a), then v = vIn e^{-GT/2} + kick, summed (the
+  /// velocity pass fused in, where the kick was not kept from the last step). Here and below
+  /// an input (vIn, rIn) may be the output itself: each row is read before it is written.
   void (*firstKick)(const Inputs&, std::int32_t begin, std::int32_t end, const double* a,
-                    double* kick, double* v, double half, double filter, double* partial);
+                    double* kick, const double* vIn, double* v, double half, double filter,
+                    double* partial);
   /// The last kick: kick = half a - filter (W a), then v = (v + kick) e^{-GT/2}.
   void (*lastKick)(const Inputs&, std::int32_t begin, std::int32_t end, const double* a,
                    double* kick, double* v, double half, double filter);
-  /// v = v e^{-GT/2} + kick, summed (the first kick kept from the last step).
-  void (*velocity)(const Inputs&, std::int32_t begin, std::int32_t end, double* v,
-                   const double* kick, double* partial);
+  /// v = vIn e^{-GT/2} + kick, summed (the first kick kept from the last step).
+  void (*velocity)(const Inputs&, std::int32_t begin, std::int32_t end, const double* vIn,
+                   double* v, const double* kick, double* partial);
   /// out = a v + scale (W u), its (Omega^2 B)^T M sum only.
   void (*horner)(const Inputs&, std::int32_t begin, std::int32_t end, const double* u,
                  const double* v, double* out, double a, double scale, double* partial);
-  /// r += t (v + t2 (W w)).
+  /// r = rIn + t (v + t2 (W w)).
   void (*drift)(const Inputs&, std::int32_t begin, std::int32_t end, const double* w,
-                const double* v, double* r, double t, double t2);
+                const double* v, const double* rIn, double* r, double t, double t2);
   // The kick filter alone (stepDefault; only outer, inner, value and dampHalf are read):
   /// kick = half a - filter (Omega^2 a), then v = (v + kick) e^{-GT/2}.
   void (*plainKick)(const Inputs&, std::int32_t begin, std::int32_t end, const double* a,
                     double* kick, double* v, double half, double filter);
-  /// v = v e^{-GT/2} + kick, then r += t v.
-  void (*plainDrift)(const Inputs&, std::int32_t begin, std::int32_t end, double* v,
-                     const double* kick, double* r, double t);
+  /// v = vIn e^{-GT/2} + kick, then r = rIn + t v.
+  void (*plainDrift)(const Inputs&, std::int32_t begin, std::int32_t end, const double* vIn,
+                     double* v, const double* kick, const double* rIn, double* r, double t);
 };
 
 /// The AVX2 kernels where wide is set and the processor has AVX2, else the baseline.

@@ -135,14 +135,15 @@ inline void storeSums(const P* basis, const P* omega, double* partial) {
 
 template <class P>
 void firstKickRows(const Inputs& in, std::int32_t begin, std::int32_t end, const double* a,
-                   double* kick, double* v, double half, double filter, double* partial) {
+                   double* kick, const double* vIn, double* v, double half, double filter,
+                   double* partial) {
   const Coefficients<P> k(in.coefficient);
   P basis[4], omega[4];
   for (std::int32_t i = begin; i < end; ++i) {
     const std::size_t o = 3 * static_cast<std::size_t>(i);
     const P kicked = half * P::load(a + o) - filter * wProduct(in, k, a, i);
     kicked.store(kick + o);
-    const P vi = P::load(v + o) * in.dampHalf[i] + kicked;
+    const P vi = P::load(vIn + o) * in.dampHalf[i] + kicked;
     vi.store(v + o);
     addMassBases(in, i, vi, basis, omega);
   }
@@ -162,12 +163,12 @@ void lastKickRows(const Inputs& in, std::int32_t begin, std::int32_t end, const 
 }
 
 template <class P>
-void velocityRows(const Inputs& in, std::int32_t begin, std::int32_t end, double* v,
-                  const double* kick, double* partial) {
+void velocityRows(const Inputs& in, std::int32_t begin, std::int32_t end, const double* vIn,
+                  double* v, const double* kick, double* partial) {
   P basis[4], omega[4];
   for (std::int32_t i = begin; i < end; ++i) {
     const std::size_t o = 3 * static_cast<std::size_t>(i);
-    const P vi = P::load(v + o) * in.dampHalf[i] + P::load(kick + o);
+    const P vi = P::load(vIn + o) * in.dampHalf[i] + P::load(kick + o);
     vi.store(v + o);
     addMassBases(in, i, vi, basis, omega);
   }
@@ -196,11 +197,11 @@ void hornerRows(const Inputs& in, std::int32_t begin, std::int32_t end, const do
 
 template <class P>
 void driftRows(const Inputs& in, std::int32_t begin, std::int32_t end, const double* w,
-               const double* v, double* r, double t, double t2) {
+               const double* v, const double* rIn, double* r, double t, double t2) {
   const Coefficients<P> k(in.coefficient);
   for (std::int32_t i = begin; i < end; ++i) {
     const std::size_t o = 3 * static_cast<std::size_t>(i);
-    (P::load(r + o) + t * (P::load(v + o) + t2 * wProduct(in, k, w, i))).store(r + o);
+    (P::load(rIn + o) + t * (P::load(v + o) + t2 * wProduct(in, k, w, i))).store(r + o);
   }
 }
 
@@ -216,13 +217,13 @@ void plainKickRows(const Inputs& in, std::int32_t begin, std::int32_t end, const
 }
 
 template <class P>
-void plainDriftRows(const Inputs& in, std::int32_t begin, std::int32_t end, double* v,
-                    const double* kick, double* r, double t) {
+void plainDriftRows(const Inputs& in, std::int32_t begin, std::int32_t end, const double* vIn,
+                    double* v, const double* kick, const double* rIn, double* r, double t) {
   for (std::int32_t i = begin; i < end; ++i) {
     const std::size_t o = 3 * static_cast<std::size_t>(i);
-    const P vi = P::load(v + o) * in.dampHalf[i] + P::load(kick + o);
+    const P vi = P::load(vIn + o) * in.dampHalf[i] + P::load(kick + o);
     vi.store(v + o);
-    (P::load(r + o) + t * vi).store(r + o);
+    (P::load(rIn + o) + t * vi).store(r + o);
   }
 }
 

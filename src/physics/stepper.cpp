@@ -387,17 +387,28 @@ void Stepper::step(State& state, const Points& external, std::span<const double>
   checkStepInputs(state, external);
   const auto start = std::chrono::steady_clock::now();
   if (tuning_) threads_ = tuner_.next();
-  takeStep(state, external, share, Part::Whole);  // one parallel region for both parts
+  takeStep(state, state, external, share, Part::Whole);  // one parallel region for both parts
   state.time += period_;
   if (tuning_)
     tuner_.record(std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count());
 }
 
 void Stepper::beginStep(State& state, const Points& external, std::span<const double> share) {
-  checkStepInputs(state, external);
+  beginStep(state, state, external, share);
+}
+
+void Stepper::beginStep(const State& from, State& state, const Points& external,
+                        std::span<const double> share) {
+  checkStepInputs(from, external);
   const auto start = std::chrono::steady_clock::now();
   if (tuning_) threads_ = tuner_.next();
-  takeStep(state, external, share, Part::Begin);
+  if (&from != &state) {
+    // Sized once (a trial state keeps its size); the time is the start's.
+    state.position.resize(from.position.rows(), 3);
+    state.velocity.resize(from.velocity.rows(), 3);
+    state.time = from.time;
+  }
+  takeStep(from, state, external, share, Part::Begin);
   begun_ = true;
   rewindable_ = scheme_ == Scheme::Default;
   begunSeconds_ = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
@@ -406,7 +417,7 @@ void Stepper::beginStep(State& state, const Points& external, std::span<const do
 void Stepper::finishStep(State& state, const Points& external, std::span<const double> share) {
   ZSCULPT_ASSERT(begun_, "finishStep without a begun step");
   const auto start = std::chrono::steady_clock::now();
-  takeStep(state, external, share, Part::Finish);
+  takeStep(state, state, external, share, Part::Finish);
   begun_ = false;
   state.time += period_;
   // The tuner times the two parts, not what the caller did between them.
@@ -423,16 +434,20 @@ void Stepper::checkStepInputs(const State& state, const Points& external) const 
   ZSCULPT_ASSERT(!begun_, "a begun step must be finished or dropped before the next");
 }
 
-void Stepper::takeStep(State& state, const Points& external, std::span<const double> share,
-                       Part part) {
+void Stepper::takeStep(const State& from, State& state, const Points& external,
+                       std::span<const double> share, Part part) {
   if (scheme_ == Scheme::Default) {
     if (filtersDrift())
-      stepDriftFiltered(state, external, share, part);
+      stepDriftFiltered(from, state, external, share, part);
     else
-      stepDefault(state, external, share, part);
+      stepDefault(from, state, external, share, part);
     return;
   }
   if (part == Part::Finish) return;  // the other schemes take the whole step at the begin
+  if (&from != &state) {
+    state.position = from.position;
+    state.velocity = from.velocity;
+  }
   switch (scheme_) {
     case Scheme::Default:
       break;
@@ -769,8 +784,8 @@ void Stepper::endDefaultPart(Part part, bool loadsZero, bool keptKick, bool shar
   loadsZero_ = loadsZero;
 }
 
-void Stepper::stepDefault(State& s, const Points& external, std::span<const double> share,
-                          Part part) {
+void Stepper::stepDefault(const State& from, State& s, const Points& external,
+                          std::span<const double> share, Part part) {
   // Velocity Verlet with the filtered acceleration Phi a, Phi = I - T^2 Omega^2 / 12, and
   // the damping of G exactly over two half steps (stepper.h):
   //   v <- e^{-GT} v + (T/2) Phi a(r);  r <- r + T v;  v <- e^{-GT} (v + (T/2) Phi a(r)).
@@ -797,6 +812,9 @@ void Stepper::stepDefault(State& s, const Points& external, std::span<const doub
   const double* e = external.data();
   double* r = s.position.data();
   double* v = s.velocity.data();
+  // The begin reads the start state from `from` (s itself, or a trial's start: beginStep).
+  const double* r0 = from.position.data();
+  const double* v0 = from.velocity.data();
   double* kick = kick_.data();
   const bool stored = model_.mesh.numVertices() <= kStoredAccelerationVertices;
   // The row passes that need no loads (filter_rows.h): AVX2 where the processor has it.
@@ -838,7 +856,7 @@ void Stepper::stepDefault(State& s, const Points& external, std::span<const doub
     };
     if (begin) {
       if (!reuse && !startCached) {
-        forces_.scatter(model_, s.position, internal_);
+        forces_.scatter(model_, from.position, internal_);
 #pragma omp for schedule(static)
         for (Index b = 0; b < blocks; ++b) forces_.gatherBlock(b, internal_);
       }
@@ -848,7 +866,7 @@ void Stepper::stepDefault(State& s, const Points& external, std::span<const doub
       if (reuse) {
 #pragma omp for schedule(static)
         for (Index b = 0; b < blocks; ++b)
-          rows.plainDrift(in, forces_.blockBegin(b), forces_.blockEnd(b), v, kick, r, t);
+          rows.plainDrift(in, forces_.blockBegin(b), forces_.blockEnd(b), v0, v, kick, r0, r, t);
       } else {
         withCase([&](auto loads, auto withGravity, auto withShare) {
 #pragma omp for schedule(static)
@@ -857,9 +875,9 @@ void Stepper::stepDefault(State& s, const Points& external, std::span<const doub
               const size_t k = 3 * static_cast<size_t>(i);
               filteredKick(loads, withGravity, withShare, f0, i, kick + k,
                            total ? total + k : nullptr);
-              const PackedPoint vi = loadPoint(v + k) * dampHalf_[i] + loadPoint(kick + k);
+              const PackedPoint vi = loadPoint(v0 + k) * dampHalf_[i] + loadPoint(kick + k);
               storePoint(v + k, vi);
-              storePoint(r + k, loadPoint(r + k) + t * vi);
+              storePoint(r + k, loadPoint(r0 + k) + t * vi);
             }
         });
       }
@@ -909,8 +927,8 @@ void Stepper::stepDefault(State& s, const Points& external, std::span<const doub
   endDefaultPart(part, externalZero, reused, !share.empty());
 }
 
-void Stepper::stepDriftFiltered(State& s, const Points& external, std::span<const double> share,
-                                Part part) {
+void Stepper::stepDriftFiltered(const State& from, State& s, const Points& external,
+                                std::span<const double> share, Part part) {
   // Velocity Verlet with both half kicks and the drift filtered (stepper.h, docs/solver.md
   // section 6), the damping of G exact over two half steps:
   //   v <- e^{-GT} v + (T/2) Phi a(r);  r <- r + T Psi v;  v <- e^{-GT} (v + (T/2) Phi a(r)),
@@ -941,6 +959,9 @@ void Stepper::stepDriftFiltered(State& s, const Points& external, std::span<cons
   const double* e = external.data();
   double* r = s.position.data();
   double* v = s.velocity.data();
+  // The begin reads the start state from `from` (s itself, or a trial's start: beginStep).
+  const double* r0 = from.position.data();
+  const double* v0 = from.velocity.data();
   double* kick = kick_.data();
   double* acc = acceleration_.data();
   double* w1 = work1_.data();
@@ -1033,14 +1054,14 @@ void Stepper::stepDriftFiltered(State& s, const Points& external, std::span<cons
         if (last)
           rows.lastKick(in, forces_.blockBegin(b), forces_.blockEnd(b), acc, kick, v, half, filter);
         else
-          rows.firstKick(in, forces_.blockBegin(b), forces_.blockEnd(b), acc, kick, v, half, filter,
-                         blockPartial(b));
+          rows.firstKick(in, forces_.blockBegin(b), forces_.blockEnd(b), acc, kick, v0, v, half,
+                         filter, blockPartial(b));
       }
     };
     if (begin) {
       if (!reuse) {
         if (!startCached) {
-          forces_.scatter(model_, s.position, internal_);
+          forces_.scatter(model_, from.position, internal_);
 #pragma omp for schedule(static)
           for (Index b = 0; b < blocks; ++b) forces_.gatherBlock(b, internal_);
         }
@@ -1050,7 +1071,8 @@ void Stepper::stepDriftFiltered(State& s, const Points& external, std::span<cons
         // Damping and the first kick, kept from the last step.
 #pragma omp for schedule(static)
         for (Index b = 0; b < blocks; ++b)
-          rows.velocity(in, forces_.blockBegin(b), forces_.blockEnd(b), v, kick, blockPartial(b));
+          rows.velocity(in, forces_.blockBegin(b), forces_.blockEnd(b), v0, v, kick,
+                        blockPartial(b));
       }
       combine(true, nullptr);
       // The drift, Psi v by Horner (D = degree): w = a_{D-1} v + a_D T^2 W v, then
@@ -1080,7 +1102,7 @@ void Stepper::stepDriftFiltered(State& s, const Points& external, std::span<cons
       }
 #pragma omp for schedule(static)
       for (Index b = 0; b < blocks; ++b)
-        rows.drift(in, forces_.blockBegin(b), forces_.blockEnd(b), term, v, r, t, driftScale);
+        rows.drift(in, forces_.blockBegin(b), forces_.blockEnd(b), term, v, r0, r, t, driftScale);
     }
     if (finish) {
       // Internal forces at the new position, the second kick and damping.

@@ -570,8 +570,13 @@ void Simulation::computeBaseForce(const Points& position) {
 void Simulation::runTrial(bool constrained, bool first) {
   const double t = stepper_->period();
   const int threads = stepper_->threads();
-  copyPoints(elasticStart_.position, trial_.position, threads);
-  copyPoints(elasticStart_.velocity, trial_.velocity, threads);
+  // A constrained elastic trial begins from elasticStart_ into trial_ (Stepper::beginStep's
+  // out-of-place form, the same bits); the other paths step a copy of it.
+  const bool fromStart = constrained && !allRigid_;
+  if (!fromStart) {
+    copyPoints(elasticStart_.position, trial_.position, threads);
+    copyPoints(elasticStart_.velocity, trial_.velocity, threads);
+  }
   trial_.time = elasticStart_.time;
   const Points* load = &external_;
   if (constrained) {
@@ -603,7 +608,7 @@ void Simulation::runTrial(bool constrained, bool first) {
     // kick and the drift, not the forces at its end and the second kick.
     const std::span<const double> share = stepperShare();
     if (constrained) {
-      stepper_->beginStep(trial_, *load, share);
+      stepper_->beginStep(elasticStart_, trial_, *load, share);
       // The rigid motion (below) moves the vertices; the step is finished where it ended.
       if (rigidActive_) copyPoints(trial_.position, elasticEnd_, threads);
     } else {

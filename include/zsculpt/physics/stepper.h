@@ -123,6 +123,12 @@ class Stepper {
   /// next beginStep() starts from the start forces the dropped one made. Both parts take the
   /// same loads and share. Schemes other than default take the whole step in beginStep().
   void beginStep(State& state, const Points& external, std::span<const double> elasticShare = {});
+  /// beginStep() from `from` into `state` (resized to it, its time set to from's): the same
+  /// bits as copying `from` into `state` and beginning there, without the copy (the default
+  /// scheme reads the start where the copy would; the others copy). A constrained cycle
+  /// begins each trial from the same start this way.
+  void beginStep(const State& from, State& state, const Points& external,
+                 std::span<const double> elasticShare = {});
   void finishStep(State& state, const Points& external, std::span<const double> elasticShare = {});
   /// A step was begun and neither finished nor dropped (rewind(), invalidate()).
   [[nodiscard]] bool stepBegun() const { return begun_; }
@@ -221,7 +227,9 @@ class Stepper {
   void checkStepInputs(const State& state, const Points& external) const;
   // The scheme's step, or the part of it (the schemes other than default take the whole
   // step at Part::Begin and nothing at Part::Finish).
-  void takeStep(State& state, const Points& external, std::span<const double> share, Part part);
+  // `from` is the start state of the begin (state itself but for beginStep(from, state)).
+  void takeStep(const State& from, State& state, const Points& external,
+                std::span<const double> share, Part part);
   // A begun step is dropped (rewind, invalidate, an edit): it becomes the last step for the
   // record of loads and lastTotalForce(), with its start forces in internal_.
   void dropBegunStep();
@@ -230,10 +238,11 @@ class Stepper {
   void endDefaultPart(Part part, bool loadsZero, bool keptKick, bool shared);
   // Forgets the last step's loads (a new block layout).
   void resetLoadRecord();
-  void stepDefault(State& s, const Points& external, std::span<const double> share, Part part);
+  void stepDefault(const State& from, State& s, const Points& external,
+                   std::span<const double> share, Part part);
   // The default scheme with StepperOptions::driftFilter on a braced model.
-  void stepDriftFiltered(State& s, const Points& external, std::span<const double> share,
-                         Part part);
+  void stepDriftFiltered(const State& from, State& s, const Points& external,
+                         std::span<const double> share, Part part);
   void stepPaper(State& s, const Points& external, std::span<const double> share);
   void stepExact(State& s, const Points& external, std::span<const double> share);
   void stepSymplecticEuler(State& s, const Points& external, std::span<const double> share);
