@@ -645,6 +645,32 @@ TEST(SolverThread, JobsRunBetweenTheCommandsQueuedAroundThem) {
   EXPECT_DOUBLE_EQ(solver.sessionWhenStopped().model().properties.stiffness[14], 5.0);
 }
 
+TEST(SolverThread, APausedEditsNoticeIsPostedWithoutACycle) {
+  // Painting stiffer while paused lowers the time step, and says so: the notice reached the
+  // window only after the next cycle, so a paused session showed nothing.
+  auto session = std::make_unique<Session>(gridSetup(6));
+  SolverThreadOptions options;
+  options.realTime = true;  // and paused: no cycle runs
+  SolverThread solver(std::move(session), options);
+  editing::Brush b;
+  b.property = Property::Stiffness;
+  b.value = 200.0;
+  b.radius = 1.5;
+  solver.push(Edit{editing::Dab{b, editing::BrushCentre::atVertex(14)}});
+  solver.start();
+  std::vector<std::string> messages;
+  const auto deadline = std::chrono::steady_clock::now() + std::chrono::seconds(30);
+  while (messages.empty()) {
+    ASSERT_LT(std::chrono::steady_clock::now(), deadline) << "no notice";
+    std::this_thread::sleep_for(std::chrono::milliseconds(2));
+    for (std::string& m : solver.takeMessages()) messages.push_back(std::move(m));
+  }
+  solver.stop();
+  EXPECT_EQ(solver.sessionWhenStopped().cycle(), 0u);
+  ASSERT_EQ(messages.size(), 1u);
+  EXPECT_NE(messages[0].find("lowered T_max"), std::string::npos) << messages[0];
+}
+
 TEST(SolverThread, RealTimeModeStepsAndStops) {
   auto session = std::make_unique<Session>(gridSetup(6));
   SolverThreadOptions options;
@@ -921,6 +947,35 @@ TEST(Window, ScriptedDragAndPaintUnderXvfb) {
   EXPECT_GT((position("drag_held") - position("drag_start")).norm(), 0.5);
   EXPECT_GT(position("drag_held").z(), 0.3);
 
+  // The five energy and momentum plots are in the window as it was while dragging, each
+  // wide, with its curve drawn: every plot's range is its data's, so the curve reaches the
+  // lower part of the frame, below the value written across its top. (With ImGui 1.86 a
+  // plot given a width of -1 was a 4-pixel sliver with nothing in it.)
+  const nlohmann::json* shot = nullptr;
+  for (const auto& entry : log)
+    if (entry.value("screenshot", std::string()) == "dragging") shot = &entry;
+  ASSERT_NE(shot, nullptr);
+  const render::Image dragging = render::readPng((dir / "dragging_window.png").string());
+  ASSERT_EQ(shot->at("plots").size(), 5u);
+  for (const auto& rect : shot->at("plots")) {
+    const int x0 = static_cast<int>(rect[0].get<double>()),
+              y0 = static_cast<int>(rect[1].get<double>());
+    const int x1 = static_cast<int>(rect[2].get<double>()),
+              y1 = static_cast<int>(rect[3].get<double>());
+    ASSERT_TRUE(x0 >= 0 && y0 >= 0 && x1 <= dragging.width && y1 <= dragging.height) << rect.dump();
+    EXPECT_GT(x1 - x0, 100) << rect.dump();
+    EXPECT_GT(y1 - y0, 30) << rect.dump();
+    const std::uint8_t* frame = dragging.pixel(x0 + 2, y1 - 2);  // the frame's own colour
+    int curve = 0;
+    for (int y = y0 + 22; y < y1 - 1; ++y)
+      for (int x = x0 + 2; x < x1 - 2; ++x) {
+        const std::uint8_t* p = dragging.pixel(x, y);
+        curve +=
+            std::abs(p[0] - frame[0]) + std::abs(p[1] - frame[1]) + std::abs(p[2] - frame[2]) > 90;
+      }
+    EXPECT_GT(curve, 10) << "no curve in the plot at " << rect.dump();
+  }
+
   const render::Image before = render::readPng((dir / "before_paint.png").string());
   const render::Image after = render::readPng((dir / "after_paint.png").string());
   ASSERT_EQ(before.width, after.width);
@@ -1010,6 +1065,50 @@ TEST(Window, APressOnABoundaryVertexTakesIt) {
     // The pointer went 60 pixels up the screen: the corner rose with it.
     EXPECT_GT(probes[name + "_held"].z() - probes[name + "_start"].z(), 0.5) << name;
   }
+  fs::remove_all(dir);
+}
+
+TEST(Window, APausedWaitIsSkippedAndPaintingShowsWhatItPaints) {
+  // A script starts paused. A wait for a time or a cycle before any play waited for ever (the
+  // run had to be killed); each is now a logged error and the script goes on, and a wait after
+  // the play is a wait. Then a dab of mass on an uncoloured grid: choosing the paint tool
+  // colours the surface by the painted property, so the dab shows (it changed nothing on
+  // screen before).
+  if (std::system("command -v xvfb-run > /dev/null 2>&1") != 0)
+    GTEST_SKIP() << "xvfb-run is not installed";
+  if (!fs::exists(ZSCULPT_BINARY)) GTEST_SKIP() << ZSCULPT_BINARY << " is not built";
+  const fs::path dir = tempDir("window_paused_wait");
+  const std::string command = std::string("timeout 120 xvfb-run -a -s \"-screen 0 1280x800x24\" ") +
+                              ZSCULPT_BINARY + " open builtin:grid --damping 0.05 --script " +
+                              ZSCULPT_TEST_DATA_DIR + "/app/paused_wait.jsonl --screenshot-out " +
+                              dir.string() + " > " + (dir / "log.txt").string() + " 2>&1";
+  ASSERT_EQ(std::system(command.c_str()), 0) << readText(dir / "log.txt");
+  const nlohmann::json log = nlohmann::json::parse(readText(dir / "script_log.json"));
+  std::vector<std::string> errors;
+  std::map<std::string, nlohmann::json> probes;
+  for (const auto& entry : log) {
+    if (entry.contains("error")) errors.push_back(entry.at("error").get<std::string>());
+    if (entry.contains("probe")) probes[entry.at("probe").get<std::string>()] = entry;
+  }
+  ASSERT_EQ(errors.size(), 2u) << log.dump();
+  EXPECT_NE(errors[0].find("line 1: wait_time while the solver is paused"), std::string::npos)
+      << errors[0];
+  EXPECT_NE(errors[1].find("line 2: wait_cycle while the solver is paused"), std::string::npos)
+      << errors[1];
+  for (const char* name : {"played", "paint_before", "paint_after"})
+    ASSERT_TRUE(probes.count(name)) << name;
+  EXPECT_NE(readText(dir / "log.txt").find("colouring by mass, the property painted"),
+            std::string::npos);
+  // The painted vertex's pixel changed colour (paused: nothing moved).
+  const render::Image before = render::readPng((dir / "before_paint.png").string());
+  const render::Image after = render::readPng((dir / "after_paint.png").string());
+  const auto& pixel = probes["paint_before"].at("pixel");
+  const int x = static_cast<int>(pixel[0].get<double>()),
+            y = static_cast<int>(pixel[1].get<double>());
+  ASSERT_TRUE(x >= 0 && x < before.width && y >= 0 && y < before.height);
+  const std::uint8_t *p = before.pixel(x, y), *q = after.pixel(x, y);
+  EXPECT_GT(std::abs(p[0] - q[0]) + std::abs(p[1] - q[1]) + std::abs(p[2] - q[2]), 60);
+  EXPECT_DOUBLE_EQ(probes["paint_after"].at("scalar").get<double>(), 3.0);
   fs::remove_all(dir);
 }
 

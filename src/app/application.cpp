@@ -2,6 +2,7 @@
 // panels.cpp.
 
 #include <algorithm>
+#include <chrono>
 #include <cmath>
 #include <filesystem>
 #include <fstream>
@@ -286,6 +287,8 @@ void Window::message(std::string text) {
   if (scripted_) std::cerr << "zsculpt: " << text << "\n";
   log_.push_back(std::move(text));
   while (log_.size() > 200) log_.pop_front();
+  lastMessageAt_ =
+      std::chrono::duration<double>(std::chrono::steady_clock::now().time_since_epoch()).count();
 }
 
 void Window::push(Command c) {
@@ -803,10 +806,18 @@ void Window::stepScript() {
         ++scriptNext_;
         return;
       }
-      if (action == "wait_cycle") {
-        if (s.cycle < j.at("cycle").get<std::uint64_t>()) return;
-      } else if (action == "wait_time") {
-        if (s.time < j.at("time").get<double>()) return;
+      if (action == "wait_cycle" || action == "wait_time") {
+        const bool reached = action == "wait_cycle" ? s.cycle >= j.at("cycle").get<std::uint64_t>()
+                                                    : s.time >= j.at("time").get<double>();
+        if (!reached) {
+          // Scripts start paused: a wait on a paused solver with nothing pushed still to apply
+          // would wait for ever.
+          if (!s.running && s.commandsApplied >= pushed_)
+            throw InvalidInputError(action +
+                                    " while the solver is paused (a script starts paused: "
+                                    "push {\"type\": \"play\"} first); skipped");
+          return;
+        }
       } else if (action == "wait_applied") {
         if (s.commandsApplied < pushed_) return;
       } else if (action == "command") {
@@ -876,6 +887,17 @@ void Window::stepScript() {
           takeScreenshot(name, what == "both");
         } else {
           throw InvalidInputError("screenshot: what \"" + what + "\": unknown (valid: both, model, window)");
+        }
+        if (what != "model") {
+          // The plots as the captured frame draws them (the layout of the frame before).
+          nlohmann::json rects = nlohmann::json::array();
+          for (const auto& r : plotRects_) rects.push_back({r[0], r[1], r[2], r[3]});
+          scriptLog_.push_back({{"frame", scriptFrame_}, {"screenshot", name}, {"plots", rects}});
+          // The window is captured at the end of this frame: the next lines wait for the
+          // next, so that it shows the window as it is at this line (a pointer line after
+          // it would otherwise move the cursor first).
+          ++scriptNext_;
+          return;
         }
       } else if (action == "probe") {
         const Index v = j.at("vertex").get<Index>();

@@ -1,14 +1,15 @@
 // The Dear ImGui panels of the window: simulation, tools and brush, display, live plots,
 // statistics, file, messages; the unsaved-edits dialogs; overlays drawn over the 3D view.
 
+#include <imgui.h>
+#include <imgui_stdlib.h>
+
 #include <algorithm>
+#include <chrono>
 #include <cmath>
 #include <cstdio>
 #include <filesystem>
 #include <limits>
-
-#include <imgui.h>
-#include <imgui_stdlib.h>
 
 #include "window.h"
 #include "zsculpt/core/errors.h"
@@ -42,9 +43,10 @@ std::string seconds(double s) {
   return text;
 }
 
-// PlotLines over a ring buffer: the oldest sample first.
-void plot(const char* label, const std::array<float, PlotSeries::kSize>& data, const PlotSeries& series,
-          float height) {
+// PlotLines over a ring buffer: the oldest sample first, as wide as the panel. Returns where
+// it was drawn (window coordinates).
+std::array<float, 4> plot(const char* label, const std::array<float, PlotSeries::kSize>& data,
+                          const PlotSeries& series, float width, float height) {
   const int count = series.count;
   const int offset = count < PlotSeries::kSize ? 0 : series.next;
   float lo = std::numeric_limits<float>::infinity(), hi = -lo;
@@ -60,9 +62,16 @@ void plot(const char* label, const std::array<float, PlotSeries::kSize>& data, c
   char overlay[96];
   const float last = count > 0 ? data[static_cast<size_t>((series.next + PlotSeries::kSize - 1) % PlotSeries::kSize)] : 0.0f;
   std::snprintf(overlay, sizeof overlay, "%s %.4g", label, static_cast<double>(last));
+  // A width given, not -1: ImGui 1.86 (Debian 12's) takes a negative plot width literally, and
+  // drew every plot as an empty sliver.
   ImGui::PlotLines((std::string("##") + label).c_str(), data.data(), count, offset, overlay, lo, hi,
-                   ImVec2(-1.0f, height));
+                   ImVec2(width, height));
+  const ImVec2 min = ImGui::GetItemRectMin(), max = ImGui::GetItemRectMax();
+  return {min.x, min.y, max.x, max.y};
 }
+
+// How long the newest message stays under the status line.
+constexpr double kMessageSeconds = 8.0;
 
 }  // namespace
 
@@ -91,15 +100,25 @@ void Window::panels() {
     ImGui::SameLine();
     ImGui::TextDisabled("  (unsaved edits)");
   }
+  // The newest message for a while under the status, where it is seen: the Messages panel
+  // at the bottom of the sidebar is off screen on a small window.
+  const double now =
+      std::chrono::duration<double>(std::chrono::steady_clock::now().time_since_epoch()).count();
+  if (!log_.empty() && now - lastMessageAt_ < kMessageSeconds) {
+    ImGui::PushStyleColor(ImGuiCol_Text, ImVec4(0.15f, 0.25f, 0.6f, 1));
+    ImGui::TextWrapped("%s", log_.back().c_str());
+    ImGui::PopStyleColor();
+  }
 
   if (ImGui::CollapsingHeader("Simulation", ImGuiTreeNodeFlags_DefaultOpen)) simulationPanel(s);
   if (ImGui::CollapsingHeader("Tools and brush", ImGuiTreeNodeFlags_DefaultOpen)) toolPanel(s);
   if (ImGui::CollapsingHeader("Display", ImGuiTreeNodeFlags_DefaultOpen)) displayPanel(s);
-  if (ImGui::CollapsingHeader("Plots", ImGuiTreeNodeFlags_DefaultOpen)) plotPanel(s);
   if (ImGui::CollapsingHeader("Statistics")) statisticsPanel(s);
   if (ImGui::CollapsingHeader("File")) filePanel(s);
   if (ImGui::CollapsingHeader("Messages", ImGuiTreeNodeFlags_DefaultOpen)) messagePanel();
   ImGui::End();
+  if (showPlots_) plotStrip();
+  showPaintedProperty(s);
   popups(s);
 }
 
@@ -264,6 +283,11 @@ void Window::displayPanel(const Snapshot& s) {
   ImGui::Checkbox("refined wireframe", &view_.surfaceWireframe);
   ImGui::SameLine();
   ImGui::Checkbox("glyphs", &view_.glyphs);
+  ImGui::SameLine();
+  ImGui::Checkbox("plots", &showPlots_);
+  help(
+      "Kinetic, potential and total energy, |p| and |L| over the last cycles, across the top of "
+      "the view.");
   int levels = view_.levels;
   const int most = affordableLevels(*mesh_, 4);
   if (ImGui::SliderInt("subdivision", &levels, 0, std::max(most, 0))) {
@@ -297,14 +321,63 @@ void Window::displayPanel(const Snapshot& s) {
   if (ImGui::Button("Frame model (Home)")) frameModel();
 }
 
-void Window::plotPanel(const Snapshot& s) {
-  (void)s;
-  const float h = 52.0f;
-  plot("kinetic", plots_.kinetic, plots_, h);
-  plot("potential", plots_.potential, plots_, h);
-  plot("total energy", plots_.total, plots_, h);
-  plot("|p| linear momentum", plots_.momentum, plots_, h);
-  plot("|L| angular momentum", plots_.angular, plots_, h);
+void Window::showPaintedProperty(const Snapshot& s) {
+  // A dab changes nothing on screen unless the surface is coloured by what it paints: picking
+  // the paint tool, or another property to paint, colours by that property (as weight
+  // painting does elsewhere); a fixed range made for another property gives way to the
+  // automatic one. Turning the colouring off afterwards is the user's to do.
+  const bool changed = tool_ != lastTool_ || brush_.property != lastBrushProperty_;
+  lastTool_ = tool_;
+  lastBrushProperty_ = brush_.property;
+  if (tool_ != Tool::Paint || !changed) return;
+  if (s.scalarProperty != brush_.property) {
+    solver_->setDisplayProperty(brush_.property);
+    view_.autoRange = true;
+  }
+  if (!view_.colourByProperty)
+    message("colouring by " + std::string(propertyName(brush_.property)) +
+            ", the property painted");
+  view_.colourByProperty = true;
+}
+
+void Window::plotStrip() {
+  // Across the top of the view, where the model seldom is (framing centres it), and always in
+  // sight: in the sidebar the plots were below the fold of an 800-pixel window.
+  const ImGuiIO& io = ImGui::GetIO();
+  const float sidebar = static_cast<float>(sidebarPixels_ / pixelScale_);
+  const float plotHeight = 48.0f;
+  const ImGuiStyle& style = ImGui::GetStyle();
+  ImGui::SetNextWindowPos(ImVec2(0.0f, 0.0f));
+  ImGui::SetNextWindowSize(ImVec2(std::max(1.0f, io.DisplaySize.x - sidebar),
+                                  plotHeight + 2.0f * style.WindowPadding.y));
+  ImGui::SetNextWindowBgAlpha(0.7f);
+  ImGui::Begin("plots", nullptr,
+               ImGuiWindowFlags_NoMove | ImGuiWindowFlags_NoResize | ImGuiWindowFlags_NoCollapse |
+                   ImGuiWindowFlags_NoTitleBar | ImGuiWindowFlags_NoScrollbar |
+                   ImGuiWindowFlags_NoSavedSettings | ImGuiWindowFlags_NoBringToFrontOnFocus);
+  const float width =
+      std::max(1.0f, (ImGui::GetContentRegionAvail().x - 4.0f * style.ItemSpacing.x) / 5.0f);
+  const struct {
+    const char* label;
+    const std::array<float, PlotSeries::kSize>& data;
+  } series[5] = {{"kinetic", plots_.kinetic},
+                 {"potential", plots_.potential},
+                 {"total energy", plots_.total},
+                 {"|p|", plots_.momentum},
+                 {"|L|", plots_.angular}};
+  for (int i = 0; i < 5; ++i) {
+    if (i > 0) ImGui::SameLine();
+    std::array<float, 4>& rect = plotRects_[static_cast<size_t>(i)];
+    rect = plot(series[i].label, series[i].data, plots_, width, plotHeight);
+    for (float& c : rect) c *= static_cast<float>(pixelScale_);
+    if (ImGui::IsItemHovered())
+      ImGui::SetTooltip(
+          i < 3    ? "%s (J): the last %d cycles"
+          : i == 3 ? "%s, linear momentum (kg m/s): the last %d cycles"
+                   : "%s, angular momentum about the centre of mass (kg m^2/s): the last %d cycles",
+          series[i].label, plots_.count);
+  }
+  ImGui::End();
 }
 
 void Window::statisticsPanel(const Snapshot& s) {

@@ -174,6 +174,13 @@ void SolverThread::loop() {
     // Everything pushed before stop() is applied (and recorded) before the thread ends.
     applyPending();
     bool changed = applied_ != appliedBefore || jobsRan;
+    // What the commands had to say (an edit that lowered the time step) is said now, not at
+    // the next cycle: a paused session may have none for a while.
+    if (changed) {
+      session_->takeNotices(notices);
+      for (std::string& n : notices) postMessage(std::move(n));
+      notices.clear();
+    }
     if (stopping) {
       if (changed) publish();
       break;

@@ -105,7 +105,8 @@ class Window {
   void simulationPanel(const Snapshot& s);
   void toolPanel(const Snapshot& s);
   void displayPanel(const Snapshot& s);
-  void plotPanel(const Snapshot& s);
+  void plotStrip();
+  void showPaintedProperty(const Snapshot& s);
   void statisticsPanel(const Snapshot& s);
   void filePanel(const Snapshot& s);
   void messagePanel();
@@ -131,6 +132,9 @@ class Window {
   std::uint64_t pushed_ = 0;
   std::uint64_t lastSerial_ = 0;
   PlotSeries plots_;
+  // Where the last frame drew each plot (x0, y0, x1, y1, framebuffer pixels), for a script's
+  // screenshot log: the window test checks the curves are drawn.
+  std::array<std::array<float, 4>, 5> plotRects_{};
   double statsSolverSeconds_ = 0.0;
 
   // View.
@@ -142,6 +146,10 @@ class Window {
 
   // Input state.
   Tool tool_ = Tool::Drag;
+  // The tool and brush property of the frame before: choosing the paint tool, or another
+  // property to paint, colours the surface by it (showPaintedProperty).
+  Tool lastTool_ = Tool::Drag;
+  Property lastBrushProperty_ = Property::Stiffness;
   enum class Gesture { None, Orbit, Pan, Tool } gesture_ = Gesture::None;
   int gestureButton_ = -1;
   double lastX_ = 0.0, lastY_ = 0.0;
@@ -183,6 +191,9 @@ class Window {
   std::string meshField_;
   int screenshotCounter_ = 0;
   std::deque<std::string> log_;
+  // When the newest message came (steady clock, seconds): it is shown under the status a while.
+  double lastMessageAt_ = -1e9;
+  bool showPlots_ = true;  // the energy and momentum strip across the top of the view
   std::string lastError_;
   bool quit_ = false;
   bool confirmQuit_ = false;
