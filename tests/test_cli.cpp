@@ -517,14 +517,74 @@ TEST_F(Cli, RenderOfAStillModelGivesIdenticalFrames) {
 TEST_F(Cli, RenderRefusesBadInputBeforeAnyWork) {
   expectOneLineError(run("render builtin:torus --out " + path("a") + " --size 0x100"), 2, "--size");
   expectOneLineError(run("render builtin:torus --out " + path("b") + " --size 100000x100"), 2, "--size");
-  expectOneLineError(run("render builtin:torus --out " + path("c") + " --property colour"), 2, "colour");
+  expectOneLineError(run("render builtin:torus --out " + path("c") + " --property colour"), 2,
+                     "--property: unknown property 'colour'");
   expectOneLineError(run("render builtin:torus --out " + path("d") + " --levels 9"), 2, "--levels");
   expectOneLineError(run("render builtin:torus --out /proc/zsculpt/frames"), 2, "/proc/zsculpt");
   expectOneLineError(run("render " + path("missing.obj") + " --out " + path("e")), 2, "missing.obj");
-  for (const char* d : {"a", "b", "c", "d"}) {
-    std::error_code ec;
-    EXPECT_TRUE(!fs::exists(path(d)) || fs::is_empty(path(d), ec)) << d;
+  expectOneLineError(run("render builtin:torus --out " + path("f") + " --frames 0"), 2, "--frames");
+  expectOneLineError(run("render builtin:torus --out " + path("g/h") + " --every 0"), 2, "--every");
+  // A refused run leaves not even an empty folder (it was made before the checks).
+  for (const char* d : {"a", "b", "c", "d", "e", "f", "g"}) EXPECT_FALSE(fs::exists(path(d))) << d;
+}
+
+TEST_F(Cli, ARefusedRunMakesNoFolderAndNamesTheFlagAtFault) {
+  // Found by a review: each of these exited 2 and left its output folder behind, or named
+  // another flag, or said something else than what was wrong.
+  expectOneLineError(run("demo --frames -1 --out " + path("demo")), 2, "--frames");
+  expectOneLineError(run("demo --property foo --frames 2 --out " + path("demo")), 2,
+                     "--property: unknown property 'foo'");
+  expectOneLineError(run("reproduce figure4 --out " + path("figures")), 2,
+                     "unknown target 'figure4'");
+  expectOneLineError(run("subdivide builtin:helix --out " + path("curve/h.stl")), 2,
+                     "has no faces");
+  expectOneLineError(
+      run("subdivide builtin:torus:1024:1024 --levels 8 --out " + path("deep/x.obj")), 2,
+      "--levels: 8 levels of this 1048576-vertex mesh");
+  expectOneLineError(run("simulate builtin:dodecahedron --mass 1e-320 --steps 2 --state-out " +
+                         path("tiny/s.csv")),
+                     2, "builtin:dodecahedron: equation 5's critical period T_max is 0 s");
+  for (const char* d : {"demo", "figures", "curve", "deep", "tiny"})
+    EXPECT_FALSE(fs::exists(path(d))) << d;
+  // A folder given as the mesh output is a folder, not an unknown format.
+  expectOneLineError(run("subdivide builtin:dodecahedron --out " + dir_.string()), 2,
+                     dir_.string() + ": is a directory");
+  // Two outputs of one run naming one file: the first would be lost.
+  expectOneLineError(run("simulate builtin:dodecahedron --steps 2 --state-out " + path("same.csv") +
+                         " --csv " + dir_.string() + "/./same.csv"),
+                     2, "is also --csv's file");
+  EXPECT_FALSE(fs::exists(path("same.csv")));
+  EXPECT_EQ(
+      run("simulate builtin:dodecahedron --steps 2 --state-out /dev/null --csv /dev/null").status,
+      0);
+  // A seed is 32 bits, and a count takes no sign.
+  expectOneLineError(run("simulate builtin:dodecahedron --steps 2 --perturb 0.1 --seed 4294967296"),
+                     2, "--seed: Value 4294967296 not in range 0 to 4294967295");
+  expectOneLineError(run("simulate builtin:dodecahedron --steps 2 --perturb 0.1 --seed -1"), 2,
+                     "--seed: '-1' is not a whole number in decimal");
+  EXPECT_EQ(run("simulate builtin:dodecahedron --steps 2 --perturb 0.1 --seed 4294967295").status,
+            0);
+  // replay --every takes a count of at least 1 (-5 was read as a huge count, 0 as none).
+  {
+    std::ofstream recording(path("session.jsonl"));
+    recording
+        << R"({"zsculpt_recording":1,"source":"builtin:grid","scheme":"default","period":0.19364916731037085,"mesh_hash":"9d83a79362d3299c","scene":{"version":1,"mesh":"builtin:grid","properties":{"mass":0.5,"damping":0.0,"stiffness":5.0,"angular_stiffness":0.0,"rigidity":0.0,"rest_length_scale":1.0,"gravity":[0.0,0.0,0.0]},"simulation":{"scheme":"default"}}})"
+        << "\n{\"cycle\":0,\"type\":\"play\"}\n{\"cycle\":3,\"type\":\"pause\"}\n";
   }
+  for (const char* every : {"-5", "0", "-0"})
+    expectOneLineError(run("replay " + path("session.jsonl") + " --no-frames --every " + every +
+                           " --out " + path("replayed")),
+                       2, "--every: must be at least 1");
+  EXPECT_FALSE(fs::exists(path("replayed")));
+  EXPECT_EQ(
+      run("replay " + path("session.jsonl") + " --no-frames --every 2 --out " + path("replayed"))
+          .status,
+      0);
+  EXPECT_TRUE(fs::exists(path("replayed/final_state.csv")));
+  // A run of a model at rest has no relative energy drift: said so, not "-nan".
+  const Result still = run("simulate builtin:dodecahedron --steps 2");
+  EXPECT_EQ(still.status, 0);
+  EXPECT_NE(still.out.find("(drift undefined)"), std::string::npos) << still.out;
 }
 
 TEST_F(Cli, RenderDivergenceExitsThreeKeepingWhatWasRendered) {

@@ -617,7 +617,10 @@ TEST(Offscreen, PngIsWrittenWholeAndUnwritableFoldersAreReported) {
     ++files;
   }
   EXPECT_EQ(files, 1);
-  EXPECT_THROW(offscreen().renderPng(frame, 16, 16, "/nonexistent-zsculpt-dir/frame.png"), IOError);
+  // A folder that cannot be made (a file stands where it would be); a missing one is made.
+  EXPECT_THROW(offscreen().renderPng(frame, 16, 16, (path / "frame.png").string()), IOError);
+  offscreen().renderPng(frame, 16, 16, (path.parent_path() / "made" / "frame.png").string());
+  EXPECT_EQ(readPng((path.parent_path() / "made" / "frame.png").string()).width, 16);
   fs::remove_all(path.parent_path());
 }
 

@@ -278,7 +278,7 @@ ReplayResult replay(const Recording& recording, const ReplayOptions& options) {
   render::Camera camera;
   Snapshot snapshot;
   if (writing) {
-    io::ensureWritableDirectory(options.outDir);
+    io::checkCreatableDirectory(options.outDir);  // made by the first file written
     if (options.frames) {
       try {
         renderer = std::make_unique<render::OffscreenRenderer>();

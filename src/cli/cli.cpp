@@ -20,19 +20,23 @@ void checkValues(CLI::App& app) {
   for (CLI::Option* option : app.get_options()) {
     if (option->get_type_size_max() == 0) continue;  // a flag
     const std::string type = option->get_type_name();
-    const bool whole = type.rfind("INT", 0) == 0 || type.rfind("UINT", 0) == 0;
+    const bool unsignedWhole = type.rfind("UINT", 0) == 0;
+    const bool whole = type.rfind("INT", 0) == 0 || unsignedWhole;
     option->transform(CLI::Validator(
-        [whole](std::string& value) -> std::string {
+        [whole, unsignedWhole](std::string& value) -> std::string {
           if (value.empty()) return "the value must not be empty";
           if (!whole) return {};
-          long long parsed = 0;
-          const char* end = value.data() + value.size();
-          const auto [ptr, ec] = std::from_chars(value.data(), end, parsed);
-          if (ec == std::errc::result_out_of_range) return "'" + value + "' is out of range";
-          if (ec != std::errc() || ptr != end)
-            return "'" + value + "' is not a whole number in decimal";
-          value = std::to_string(parsed);  // 010 is ten, not CLI11's octal eight
-          return {};
+          // An unsigned count takes no sign at all ("-1" is not converted to 2^64 - 1).
+          auto parse = [&value](auto parsed) -> std::string {
+            const char* end = value.data() + value.size();
+            const auto [ptr, ec] = std::from_chars(value.data(), end, parsed);
+            if (ec == std::errc::result_out_of_range) return "'" + value + "' is out of range";
+            if (ec != std::errc() || ptr != end)
+              return "'" + value + "' is not a whole number in decimal";
+            value = std::to_string(parsed);  // 010 is ten, not CLI11's octal eight
+            return {};
+          };
+          return unsignedWhole ? parse(0ULL) : parse(0LL);
         },
         ""));
   }

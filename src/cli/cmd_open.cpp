@@ -121,6 +121,7 @@ int runOpen(const OpenOptions& options) {
   // a path that could never be written.
   for (const std::string* path : {&window.recordPath, &window.stateOut})
     if (!path->empty()) io::checkOutputFile(*path);
+  checkDistinctOutputs({{"--record", &window.recordPath}, {"--state-out", &window.stateOut}});
   app::SessionSetup setup = makeSetup(options);
   return app::runWindow(std::move(setup), window);
 }
@@ -138,7 +139,8 @@ void addOpenCommand(CLI::App& root, CommandList& commands) {
       ->excludes(dt);
   app->add_flag("--allow-unstable", o->run.allowUnstable, "accept a time step above the scheme's stable limit");
   app->add_option("--perturb", o->perturb, "random initial velocity of this size, zero net momentum");
-  app->add_option("--seed", o->seed, "seed of --perturb (default 0)");
+  app->add_option("--seed", o->seed, "seed of --perturb, 0 to 4294967295 (default 0)")
+      ->check(CLI::Range(0U, 4294967295U));
   app->add_option("--state-in", o->stateIn, "initial state (CSV x,y,z,vx,vy,vz)");
   app->add_option("--force", o->forces, "I:FX,FY,FZ[:T0:T1] force at vertex I (repeatable)");
   app->add_option("--torque", o->torques, "I:TX,TY,TZ[:T0:T1] torque at vertex I (repeatable)");

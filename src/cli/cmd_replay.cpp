@@ -7,6 +7,7 @@
 #include <cstdio>
 #include <iostream>
 #include <memory>
+#include <optional>
 
 #include "commands.h"
 #include "model_options.h"
@@ -21,7 +22,7 @@ namespace {
 struct ReplayOptions {
   std::string recording;
   std::string out;
-  unsigned long every = 0;
+  std::optional<long> every;  // none: only the final frame
   std::string size = "1280x720";
   std::string property;
   int levels = 2;
@@ -38,10 +39,11 @@ std::string hex(std::uint64_t v) {
 int runReplay(const ReplayOptions& o) {
   app::ReplayOptions options;
   options.outDir = o.out;
-  options.frameEvery = o.every;
+  if (o.every && *o.every < 1) throw InvalidInputError("--every: must be at least 1");
+  options.frameEvery = o.every ? static_cast<unsigned long>(*o.every) : 0;
   options.frames = !o.noFrames;
   render::parseImageSize(o.size, options.width, options.height, "--size");
-  if (!o.property.empty()) options.property = propertyFromName(o.property);
+  if (!o.property.empty()) options.property = propertyOption(o.property);
   if (o.levels < 0 || o.levels > 6) throw InvalidInputError("--levels: must be between 0 and 6");
   options.levels = o.levels;
   const app::Recording recording = app::readRecording(o.recording);

@@ -42,16 +42,18 @@ void addReproduceCommand(CLI::App& root, CommandList& commands) {
   app->add_option("--out", options->out, "output folder")->required();
   app->add_flag("--quick", options->quick, "shorter runs (for tests)");
   commands.push_back({app, [what, options]() {
-                        io::ensureWritableDirectory(options->out);
+                        io::checkCreatableDirectory(options->out);
                         if (*what == "all") {
                           int status = 0;
-                          for (const auto& [name, fn] : targets()) status = std::max(status, fn(*options));
+                          for (const auto& [name, fn] : targets())
+                            status = std::max(status, fn(*options));
                           return status;
                         }
                         for (const auto& [name, fn] : targets())
                           if (name == *what) return fn(*options);
                         std::string valid;
-                        for (const auto& [name, fn] : targets()) valid += (valid.empty() ? "" : ", ") + name;
+                        for (const auto& [name, fn] : targets())
+                          valid += (valid.empty() ? "" : ", ") + name;
                         throw InvalidInputError("reproduce: unknown target '" + *what +
                                                 "' (valid: " + valid + ", all)");
                       }});

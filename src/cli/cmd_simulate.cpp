@@ -37,6 +37,7 @@ int runSimulate(const SimulateOptions& options) {
   // Check the output folders before any work.
   for (const std::string* path : {&options.run.csv, &options.run.stateOut})
     if (!path->empty()) io::checkOutputFile(*path);
+  checkDistinctOutputs({{"--csv", &options.run.csv}, {"--state-out", &options.run.stateOut}});
 
   const long steps = resolved.steps;
   const long window = std::max(1L, steps / 10);
@@ -128,12 +129,21 @@ int runSimulate(const SimulateOptions& options) {
     std::cout << "  \"wall_seconds\": " << jsonNumber(wall) << "\n"
               << "}\n";
   } else {
+    // A relative drift of nothing (a model at rest) is no number: said so, as JSON's null.
+    auto drift = [](double d) {
+      std::ostringstream text;
+      if (std::isfinite(d))
+        text << d;
+      else
+        text << "undefined";
+      return text.str();
+    };
     std::cout << "scheme " << schemeName(resolved.settings.scheme) << ", dt "
               << resolved.settings.period << " s (" << resolved.settings.period / resolved.tMax
               << " T_max), " << steps << " steps\n"
-              << "energy " << start.total() << " -> " << last.total() << " (drift " << energyDrift
-              << "), momentum drift " << momentumDrift << ", angular momentum drift "
-              << angularDrift << "\n";
+              << "energy " << start.total() << " -> " << last.total() << " (drift "
+              << drift(energyDrift) << "), momentum drift " << drift(momentumDrift)
+              << ", angular momentum drift " << drift(angularDrift) << "\n";
     if (splitCycles > 0)
       std::cout << splitCycles << " steps split for fast motion, into up to " << mostSubsteps
                 << " substeps\n";

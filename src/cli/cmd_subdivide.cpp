@@ -32,7 +32,15 @@ int runSubdivide(const SubdivideOptions& options) {
   sub.interpolate = !options.classic;
   sub.mass = &loaded.model.properties.mass;
   const Mesh& control = loaded.model.mesh;
-  const SubdivisionStencil stencil(control, sub);
+  // The stencil refuses levels the memory cannot take; said of the flag that asked for them.
+  const SubdivisionStencil stencil = [&] {
+    try {
+      return SubdivisionStencil(control, sub);
+    } catch (const InvalidInputError& e) {
+      const std::string what = e.what();
+      throw InvalidInputError(what.rfind("levels: ", 0) == 0 ? "--" + what : what);
+    }
+  }();
   Points refined(stencil.numRefinedVertices(), 3);
   stencil.apply(control.positions(), refined);
   const double error = maxInterpolationError(stencil, control.positions(), refined);

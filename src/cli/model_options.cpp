@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <charconv>
 #include <cmath>
+#include <filesystem>
 #include <sstream>
 
 #include "zsculpt/core/errors.h"
@@ -84,7 +85,8 @@ void RunOptions::addTo(CLI::App* app) {
   auto* stepsOption = app->add_option("--steps", steps, "number of steps (default 1000)");
   app->add_option("--time", time, "simulated time, seconds")->excludes(stepsOption);
   app->add_option("--perturb", perturb, "random initial velocity of this size, zero net momentum");
-  app->add_option("--seed", seed, "seed of --perturb (default 0)");
+  app->add_option("--seed", seed, "seed of --perturb, 0 to 4294967295 (default 0)")
+      ->check(CLI::Range(0U, 4294967295U));
   app->add_option("--state-in", stateIn, "initial state (CSV x,y,z,vx,vy,vz)");
   app->add_option("--state-out", stateOut, "write the final state here");
   app->add_option("--start-time", startTime,
@@ -123,6 +125,31 @@ double parseNumber(std::string_view text, const std::string& what) {
 }
 
 }  // namespace
+
+void checkDistinctOutputs(
+    std::initializer_list<std::pair<const char*, const std::string*>> outputs) {
+  namespace fs = std::filesystem;
+  std::vector<std::pair<const char*, fs::path>> seen;
+  for (const auto& [flag, path] : outputs) {
+    if (path->empty()) continue;
+    std::error_code ec;
+    if (fs::exists(*path, ec) && !fs::is_regular_file(*path, ec)) continue;
+    const fs::path file = fs::weakly_canonical(fs::absolute(*path, ec), ec);
+    for (const auto& [other, earlier] : seen)
+      if (earlier == file)
+        throw InvalidInputError(std::string(flag) + ": " + *path + " is also " + other +
+                                "'s file: one output would overwrite the other");
+    seen.emplace_back(flag, file);
+  }
+}
+
+Property propertyOption(const std::string& name) {
+  try {
+    return propertyFromName(name);
+  } catch (const InvalidInputError& e) {
+    throw InvalidInputError(std::string("--property: ") + e.what());
+  }
+}
 
 TimedLoad parseTimedLoad(const std::string& text, const std::string& flag) {
   std::vector<std::string> parts;
@@ -211,6 +238,12 @@ RunOptions::Resolved RunOptions::resolve(const LoadedModel& loaded) const {
     // No stiffness at all (a free particle cloud): any step is stable; pick 10 ms.
     period = 0.01;
   }
+  if (!(r.tMax > 0.0) && !dt)
+    // The ratio is fine; the properties give no period to take it of (equation 5: T_max
+    // underflows to 0 for a mass like 1e-320 kg or a stiffness like 1e300 N/m).
+    throw InvalidInputError(loaded.source +
+                            ": equation 5's critical period T_max is 0 s for these properties "
+                            "(a mass too small or a stiffness too large): no time step is stable");
   if (!(period > 0.0))
     throw InvalidInputError(std::string(dt ? "--dt" : "--dt-ratio") +
                             ": the time step must be positive");

@@ -4,6 +4,7 @@
 // argument into a model and a simulation.
 
 #include <CLI/CLI.hpp>
+#include <initializer_list>
 #include <optional>
 #include <string>
 #include <vector>
@@ -77,6 +78,14 @@ VertexVector parseVertexVector(const std::string& text, const std::string& flag)
 
 /// "I:FX,FY,FZ[:T0:T1]" as in cli.md; throws InvalidInputError naming the flag.
 TimedLoad parseTimedLoad(const std::string& text, const std::string& flag);
+
+/// Two output flags naming one file would leave only the second write: InvalidInputError
+/// "<flag>: <path> is also <other flag>'s file" (devices and pipes may take both).
+void checkDistinctOutputs(
+    std::initializer_list<std::pair<const char*, const std::string*>> outputs);
+
+/// A property's name given to --property: its Property, or InvalidInputError "--property: ...".
+Property propertyOption(const std::string& name);
 
 /// A JSON number that stays valid JSON for infinities (as null).
 std::string jsonNumber(double value);

@@ -93,13 +93,14 @@ RenderJobResult runRenderJob(const RenderJobOptions& o) {
   // 1. Everything that can be refused, before any simulation work.
   render::parseImageSize(o.size, result.width, result.height, "--size");
   std::optional<Property> property;
-  if (!o.property.empty() && o.property != "none") property = propertyFromName(o.property);
+  if (!o.property.empty() && o.property != "none") property = propertyOption(o.property);
   if (o.levels && (*o.levels < 0 || *o.levels > 6))
     throw InvalidInputError("--levels: must be between 0 and 6");
   if (o.out.empty()) throw InvalidInputError("--out: an output folder is required");
-  io::ensureWritableDirectory(o.out);
+  io::checkCreatableDirectory(o.out);  // made by the first frame written
   for (const std::string* path : {&o.run.csv, &o.run.stateOut})
     if (!path->empty()) io::checkOutputFile(*path);
+  checkDistinctOutputs({{"--csv", &o.run.csv}, {"--state-out", &o.run.stateOut}});
   render::OffscreenRenderer renderer;  // IOError when OSMesa cannot give a context
   renderer.checkSize(result.width, result.height, "--size");
 

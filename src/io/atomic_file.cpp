@@ -110,6 +110,13 @@ std::string temporaryName(const fs::path& path) {
 
 /// Creates the temporary file exclusively; returns its descriptor.
 int createTemporary(const std::string& path, std::string& temporary) {
+  // The folder is made at the first write into it (checkOutputFile only checked it could be),
+  // so that a run refused before it wrote anything leaves no empty folder behind.
+  try {
+    ensureWritableDirectory(parentOf(path).string());
+  } catch (const IOError& e) {
+    fail(path, std::string("its folder: ") + e.what());
+  }
   for (int attempt = 0; attempt < 16; ++attempt) {
     temporary = temporaryName(path);
     const int fd = ::open(temporary.c_str(), O_WRONLY | O_CREAT | O_EXCL | O_CLOEXEC, 0666);
@@ -289,7 +296,29 @@ void checkOutputFile(const std::string& path) {
     if (!writable) fail(path, "not writable");
     return;
   }
-  ensureWritableDirectory(parentOf(target.path).string());
+  checkCreatableDirectory(parentOf(target.path).string());
+}
+
+void checkCreatableDirectory(const std::string& dir) {
+  const std::string name = dir.empty() ? std::string(".") : dir;
+  std::error_code ec;
+  const fs::path p(name);
+  if (fs::exists(p, ec)) {
+    if (!fs::is_directory(p, ec)) fail(name, "not a folder");
+    if (::access(name.c_str(), W_OK | X_OK) != 0) fail(name, "not writable: " + errnoText(errno));
+    return;
+  }
+  // create_directories would make the missing folders in the nearest one that exists: that
+  // one must be a folder the program may write in.
+  fs::path existing = p;
+  do {
+    existing = existing.has_relative_path() ? existing.parent_path() : fs::path();
+    if (existing.empty()) existing = ".";
+  } while (!fs::exists(existing, ec) && existing != ".");
+  if (!fs::is_directory(existing, ec))
+    fail(name, "cannot create the folder: " + existing.string() + " is not a folder");
+  if (::access(existing.c_str(), W_OK | X_OK) != 0)
+    fail(name, "cannot create the folder: " + existing.string() + ": " + errnoText(errno));
 }
 
 void ensureWritableDirectory(const std::string& dir) {

@@ -26,10 +26,16 @@ void writeFileAtomicallyVia(const std::string& path,
 
 /// Before the work whose result goes to `path`: throws IOError "<path>: <reason>" unless a
 /// save there could succeed (a file name, not a folder; its folder exists or can be made
-/// and is writable; an existing device or pipe is writable).
+/// and is writable; an existing device or pipe is writable). Makes nothing: the save makes
+/// the folder.
 void checkOutputFile(const std::string& path);
 
 /// Throws IOError "<dir>: <reason>" unless `dir` exists (or can be created) and is writable.
 void ensureWritableDirectory(const std::string& dir);
+
+/// ensureWritableDirectory's checks without making anything: `dir` is a writable folder, or
+/// the nearest folder above it that exists is one (the writes make the rest). For the checks
+/// before a run, so that a refused run leaves no empty folder behind.
+void checkCreatableDirectory(const std::string& dir);
 
 }  // namespace zsculpt::io
