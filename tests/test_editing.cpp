@@ -258,18 +258,21 @@ TEST(Falloff, CurvesGoFromOneAtTheCentreToZeroAtTheRadius) {
   EXPECT_EQ(falloffWeight(Falloff::Constant, 0.999), 1.0);
 }
 
-TEST(BrushRegion, SurfaceDistanceFollowsEdgesAndEuclideanIsStraight) {
-  const Mesh grid = makeGrid(9);  // unit spacing: along edges the distance is |di| + |dj|
+TEST(BrushRegion, SurfaceDistanceIsExactOnAFlatSheetAndEuclideanIsStraight) {
+  // On a flat sheet the distance along the surface is the straight one, and a dab is the
+  // round footprint the brush circle shows. Along the edges alone it was |di| + |dj| (a
+  // diamond of 13 vertices here, where the circle holds 21).
+  const Mesh grid = makeGrid(9);
   BrushRegion region(grid);
   const Index centre = 4 + 9 * 4;
   region.compute(grid, grid.positions(), BrushCentre::atVertex(centre), 2.5, Falloff::Linear,
                  DistanceKind::Surface);
-  EXPECT_EQ(region.size(), 13);  // |di| + |dj| <= 2
+  EXPECT_EQ(region.size(), 21);  // di^2 + dj^2 <= 5
   for (Index k = 0; k < region.size(); ++k) {
     const Index v = region.vertices()[k];
-    const double manhattan = std::abs(v % 9 - 4) + std::abs(v / 9 - 4);
-    EXPECT_DOUBLE_EQ(region.distances()[k], manhattan);
-    EXPECT_DOUBLE_EQ(region.weights()[k], 1.0 - manhattan / 2.5);
+    const double straight = std::hypot(v % 9 - 4, v / 9 - 4);
+    EXPECT_NEAR(region.distances()[k], straight, 1e-12) << v;
+    EXPECT_NEAR(region.weights()[k], 1.0 - straight / 2.5, 1e-12);
     EXPECT_EQ(region.weightOf(v), region.weights()[k]);
     if (k > 0) {
       EXPECT_GE(region.distances()[k], region.distances()[k - 1]);

@@ -141,12 +141,14 @@ BrushRegion::BrushRegion(const Mesh& mesh) {
   distanceByVertex_.assign(n, 0.0);
   weightByVertex_.assign(n, 0.0);
   stamp_.assign(n, 0u);
+  settled_.assign(n, 0u);
   generation_ = 0;
 }
 
 void BrushRegion::nextGeneration() {
   if (++generation_ == 0) {  // wrapped: forget every stamp once
     std::fill(stamp_.begin(), stamp_.end(), 0u);
+    std::fill(settled_.begin(), settled_.end(), 0u);
     generation_ = 1;
   }
   vertices_.clear();
@@ -207,9 +209,42 @@ void BrushRegion::compute(const Mesh& mesh, const Points& position, const BrushC
   }
 }
 
+namespace {
+
+// The distance at c of a front that reached a at da and b at db, across the triangle (a, b,
+// c) (fast marching's update: Kimmel and Sethian 1998, in the virtual-source form): unfolded
+// into the triangle's plane, the front comes from the point s on the far side of ab with
+// |s - a| = da and |s - b| = db, and reaches c at |c - s|, when the straight line from s to c
+// crosses ab between a and b. Infinity when it does not (the edges then carry the front) or
+// the distances are not those of one point source.
+double acrossTriangle(const Vec3& a, const Vec3& b, const Vec3& c, double da, double db) {
+  const Vec3 ab = b - a, ac = c - a;
+  const double l = ab.norm();
+  if (!(l > 0.0)) return std::numeric_limits<double>::infinity();
+  const Vec3 x = ab / l;
+  const double cx = ac.dot(x);
+  const double cy = (ac - cx * x).norm();  // c above the line ab
+  if (!(cy > 1e-12 * l)) return std::numeric_limits<double>::infinity();
+  const double sx = (da * da - db * db + l * l) / (2.0 * l);
+  const double h2 = da * da - sx * sx;
+  if (h2 < 0.0) return std::numeric_limits<double>::infinity();
+  const double sy = -std::sqrt(h2);  // the far side of ab from c
+  // Where s -> c crosses the line ab (y = 0).
+  const double t = -sy / (cy - sy);
+  const double crossing = sx + t * (cx - sx);
+  if (crossing < 0.0 || crossing > l) return std::numeric_limits<double>::infinity();
+  const double dc = std::hypot(cx - sx, cy - sy);
+  // Causality: c is reached after a and b (beyond an obtuse corner it would not be, and the
+  // order of settling would break); otherwise the edges carry the front.
+  return dc >= std::max(da, db) ? dc : std::numeric_limits<double>::infinity();
+}
+
+}  // namespace
+
 void BrushRegion::surface(const Mesh& mesh, const Points& position, const BrushCentre& centre,
                           double radius) {
-  // Dijkstra over the edges, bounded by the radius: only vertices closer than the radius
+  // Fast marching bounded by the radius: Dijkstra over the edges, and each face crossed from
+  // two of its vertices already settled (acrossTriangle). Only vertices closer than the radius
   // ever enter the heap, so the work is O(k log k) for a footprint of k vertices.
   heap_.clear();
   auto seed = [&](Index v) {
@@ -238,13 +273,32 @@ void BrushRegion::surface(const Mesh& mesh, const Points& position, const BrushC
     std::pop_heap(heap_.begin(), heap_.end(), std::greater<>());
     const auto [d, v] = heap_.back();
     heap_.pop_back();
-    if (d > distanceByVertex_[static_cast<size_t>(v)]) continue;  // stale entry
-    vertices_.push_back(v);                                       // settled: increasing distance
+    if (d > distanceByVertex_[static_cast<size_t>(v)] ||
+        settled_[static_cast<size_t>(v)] == generation_)
+      continue;  // stale entry
+    settled_[static_cast<size_t>(v)] = generation_;
+    vertices_.push_back(v);  // settled: increasing distance
     distances_.push_back(d);
-    const auto neighbours = mesh.vertexNeighbors(v);
-    for (Index u : neighbours) {
-      const double nd = d + (position.row(u) - position.row(v)).norm();
+    const Vec3 pv = position.row(v).transpose();
+    for (Index u : mesh.vertexNeighbors(v)) {
+      if (settled_[static_cast<size_t>(u)] == generation_) continue;
+      const double nd = d + (position.row(u).transpose() - pv).norm();
       if (nd < radius) reach(u, nd);
+    }
+    // Across each face of v: from v and another settled corner w to each corner u not
+    // settled yet (in a quad, also its far corner: the front crosses the face's diagonal).
+    for (Index f : mesh.vertexFaces(v)) {
+      const auto corners = mesh.face(f);
+      for (Index w : corners) {
+        if (w == v || settled_[static_cast<size_t>(w)] != generation_) continue;
+        const Vec3 pw = position.row(w).transpose();
+        const double dw = distanceByVertex_[static_cast<size_t>(w)];
+        for (Index u : corners) {
+          if (u == v || u == w || settled_[static_cast<size_t>(u)] == generation_) continue;
+          const double nd = acrossTriangle(pv, pw, position.row(u).transpose(), d, dw);
+          if (nd < radius) reach(u, nd);
+        }
+      }
     }
   }
 }

@@ -5,9 +5,13 @@
 // A brush has a centre (a vertex, a point on a face, or a free point), a radius in scene
 // units, a falloff curve and a distance kind:
 //
-//   surface    shortest path along the mesh's edges (Dijkstra, stopped at the radius), on
-//              the positions the caller passes (the shape the user sees). Costs
-//              O(k log k) for a dab covering k vertices: independent of the mesh size.
+//   surface    the distance along the surface (fast marching: Dijkstra over the edges, and
+//              across each face from two vertices already reached, by unfolding the face
+//              to find where the front came from; stopped at the radius), on the positions
+//              the caller passes (the shape the user sees). Exact on a flat region, so a dab
+//              there is the round footprint the brush circle shows (edges alone measured
+//              |di| + |dj| on a grid: a diamond). Costs O(k log k) for a dab covering k
+//              vertices: independent of the mesh size.
 //   euclidean  straight-line distance: every vertex inside the ball, also across gaps
 //              the surface would walk around. Costs one O(N) scan of the positions.
 //
@@ -127,7 +131,7 @@ class BrushRegion {
   std::vector<double> weights_, distances_;
   // Per vertex, valid where stamp_ == generation_ (so nothing is reset per dab).
   std::vector<double> distanceByVertex_, weightByVertex_;
-  std::vector<unsigned> stamp_;
+  std::vector<unsigned> stamp_, settled_;  // settled_: the distance is final (== generation_)
   unsigned generation_ = 0;
   std::vector<std::pair<double, Index>> heap_;
 };
