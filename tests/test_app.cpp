@@ -1112,5 +1112,35 @@ TEST(Window, APausedWaitIsSkippedAndPaintingShowsWhatItPaints) {
   fs::remove_all(dir);
 }
 
+TEST(Window, ATerminatedSessionStillWritesItsRecordingAndState) {
+  // SIGTERM (a closed terminal, a job killed by a pipeline) ended the window where it stood:
+  // the recording and --state-out the command line asked for were lost. The window now closes
+  // as from its button, writes both, and exits 143.
+  if (std::system("command -v xvfb-run > /dev/null 2>&1") != 0)
+    GTEST_SKIP() << "xvfb-run is not installed";
+  if (!fs::exists(ZSCULPT_BINARY)) GTEST_SKIP() << ZSCULPT_BINARY << " is not built";
+  const fs::path dir = tempDir("window_sigterm");
+  const fs::path record = dir / "session.jsonl", state = dir / "state.csv", rc = dir / "rc.txt";
+  // The window runs (and plays) until it is sent SIGTERM two seconds in.
+  const std::string inner = std::string(ZSCULPT_BINARY) + " open builtin:grid --record " +
+                            record.string() + " --state-out " + state.string() +
+                            " & pid=$!; sleep 2; kill -TERM $pid; wait $pid; echo $? > " +
+                            rc.string();
+  const std::string command = "timeout 120 xvfb-run -a -s \"-screen 0 1280x800x24\" sh -c '" +
+                              inner + "' > " + (dir / "log.txt").string() + " 2>&1";
+  ASSERT_EQ(std::system(command.c_str()), 0) << readText(dir / "log.txt");
+  EXPECT_EQ(readText(rc), "143\n") << readText(dir / "log.txt");
+  EXPECT_NE(readText(dir / "log.txt").find("zsculpt: closing on signal 15"), std::string::npos);
+  ASSERT_TRUE(fs::exists(record));
+  ASSERT_TRUE(fs::exists(state));
+  // The recording replays to the state written.
+  const ReplayResult replayed = replay(readRecording(record.string()));
+  ASSERT_TRUE(replayed.matchesRecording.has_value());
+  EXPECT_TRUE(*replayed.matchesRecording);
+  const State written = io::loadState(state.string(), replayed.finalState.position.rows());
+  EXPECT_TRUE(sameBits(written.position, replayed.finalState.position));
+  fs::remove_all(dir);
+}
+
 }  // namespace
 }  // namespace zsculpt::app
