@@ -302,10 +302,8 @@ Index Simulation::addNormalConstraint(Index vertex, std::optional<Vec3> normal) 
   const VectorX& angular = model_.properties.angularStiffness;
   if (std::any_of(ring.begin(), ring.end(), [&](Index v) { return !(angular[v] > 0.0); }))
     warnings_.push_back("normal constraint at vertex " + std::to_string(vertex) +
-                        ": its ring has no angle springs, so it folds freely, and folded far "
-                        "enough it has no plane: the normal is then let go, and once its ring "
-                        "has lost pi rad of its way back it is held where it is; paint "
-                        "angular stiffness there to hold it reliably");
+                        ": its ring has no angle springs and may fold and let go; paint "
+                        "angular stiffness there to hold it");
   return id;
 }
 
@@ -867,20 +865,18 @@ void Simulation::coupledStep() {
       warnings_.push_back("normal constraint at vertex " +
                           std::to_string(solver_.releasedVertices().front()) +
                           " let go at t = " + std::to_string(state_.time) +
-                          " s: its ring folded and has no flattest direction, so no normal to "
-                          "hold; it holds again once the ring flattens");
+                          " s: its ring folded (no normal); it holds again once the ring "
+                          "flattens");
       warnedReleased_ = true;
     }
     for (const ConstraintSolver::Stop& stop : solver_.newlyStopped())
       warnings_.push_back("normal constraint at vertex " + std::to_string(stop.vertex) +
                           " stopped at t = " + std::to_string(state_.time) + " s, " +
                           std::to_string(stop.angle) +
-                          " rad from its target: its ring lost pi rad of its way there as it "
-                          "was turned; held where it is until its target is set to another value");
+                          " rad from its target: the ring keeps turning back; held where it is");
     if (report_.yielded > 0 && !warnedYielded_) {
       warnings_.push_back("normal constraints let go at t = " + std::to_string(state_.time) +
-                          " s: they and the pins could not both be met, and the pins hold; "
-                          "the normals hold again from the next cycle");
+                          " s: they and the pins could not both be met; the pins hold");
       warnedYielded_ = true;
     }
     if (!report_.converged && !warnedUnmet_) {
