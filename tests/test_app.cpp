@@ -284,6 +284,25 @@ TEST(Session, ATimeStepChangeKeepsTheConstraintsAndWhatTheyRecorded) {
   EXPECT_EQ(session.pins().size(), 3u);
 }
 
+TEST(Session, TheStableLimitShownIsTheOneTheCommandLineGives) {
+  // The panel showed Gershgorin's bound (T_max for the default scheme) where `zsculpt
+  // simulate` refuses a step only above the tight limit (the largest eigenvalue): a period
+  // between the two was "above the stable limit" in the window and accepted on the command
+  // line. Above the bound, the session computes the tight limit too.
+  Session session(gridSetup(6));
+  Snapshot s;
+  session.fill(s, Property::Stiffness);
+  const double bound = s.stableLimit;
+  const double tight =
+      stablePeriodLimit(session.simulation().stepper().scheme(),
+                        largestEigenvalue(session.simulation().stepper().system()));
+  ASSERT_GT(tight, bound * (1.0 + 1e-6));  // the grid's boundary: Gershgorin is not tight
+  session.apply(SetTimeStep{session.simulation().stepper().scheme(), 0.5 * (bound + tight)});
+  session.fill(s, Property::Stiffness);
+  EXPECT_EQ(s.stableLimit, tight);
+  EXPECT_LE(s.period, s.stableLimit);  // the window shows no "above the stable limit"
+}
+
 TEST(Session, AnEditTheSchemeRefusesChangesNothing) {
   // The exact scheme needs damping proportional to mass: a mass dab on a damped model
   // breaks that. The dab is refused, and the values, the history and the simulation stay

@@ -168,7 +168,12 @@ void Window::simulationPanel(const Snapshot& s) {
   if (s.period > s.stableLimit)
     ImGui::TextColored(ImVec4(0.8f, 0.1f, 0.1f, 1), "T is above the stable limit %s",
                        seconds(s.stableLimit).c_str());
-  if (s.substeps > 1)
+  else if (changed && static_cast<int>(s.scheme) == schemeIndex_ && period > s.stableLimit)
+    // Before it is applied: the limit shown is Gershgorin's bound, at most the tight one.
+    ImGui::TextColored(ImVec4(0.75f, 0.4f, 0.0f, 1),
+                       "T / T_max %.3f may be above the stable limit %s",
+                       static_cast<double>(dtRatio_), seconds(s.stableLimit).c_str());
+  if (s.substeps > 1 && s.running)
     ImGui::Text("fast motion: each cycle taken in %d steps of T / %d", s.substeps, s.substeps);
 
   ImGui::SliderFloat("damping", &damping_, 0.0f, 1.0f, "%.4f kg/s", ImGuiSliderFlags_Logarithmic);

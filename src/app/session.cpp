@@ -181,6 +181,10 @@ void Session::refreshLimits() {
   const double maxDiagonal = system.omega2().size() > 0 ? system.omega2().diagonal().maxCoeff() : 0.0;
   stableLimit_ = maxDiagonal > 0.0 ? stablePeriodLimit(sim_->stepper().scheme(), 2.0 * maxDiagonal)
                                    : std::numeric_limits<double>::infinity();
+  // Gershgorin's bound is never above the tight limit: the largest eigenvalue is computed
+  // only for a period above it, as `zsculpt simulate` does, so that both give one limit.
+  if (sim_->period() > stableLimit_)
+    stableLimit_ = stablePeriodLimit(sim_->stepper().scheme(), largestEigenvalue(system));
   scalarStale_ = true;
 }
 

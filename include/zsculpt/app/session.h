@@ -83,7 +83,9 @@ struct Snapshot {
   Scheme scheme = Scheme::Default;
   double period = 0.0;
   double tMax = 0.0;          ///< equation 5 for the current properties
-  double stableLimit = 0.0;   ///< the scheme's stable period (Gerschgorin bound)
+  double stableLimit =
+      0.0;  ///< the scheme's stable period: Gershgorin's bound, or the tight limit (largest
+            ///< eigenvalue) for a period above that bound, as `zsculpt simulate` gives it
   int substeps = 1;           ///< steps in the last cycle (split when the motion is fast)
   Vec3 gravity = Vec3::Zero();
   double stiffnessCap = 0.0;
