@@ -183,6 +183,11 @@ void Window::startSession(SessionSetup setup, bool record) {
   dtRatio_ = static_cast<float>(std::isfinite(first->tMax) ? first->period / first->tMax : 0.5);
   schemeIndex_ = static_cast<int>(first->scheme);
   damping_ = static_cast<float>(first->meanDamping);
+  // Damping is off unless asked for (cli.md): say what that means for a model pushed about.
+  if (!(first->meanDamping > 0.0))
+    message(
+        "no damping: motion never dies out; set damping in Simulation (or --damping) to let "
+        "the model settle");
   gravityOn_ = first->gravity.norm() > 0.0;
   if (gravityOn_)
     for (int c = 0; c < 3; ++c) gravity_[static_cast<size_t>(c)] = static_cast<float>(first->gravity[c]);
