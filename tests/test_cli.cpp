@@ -581,6 +581,18 @@ TEST_F(Cli, ARefusedRunMakesNoFolderAndNamesTheFlagAtFault) {
           .status,
       0);
   EXPECT_TRUE(fs::exists(path("replayed/final_state.csv")));
+  // A load on a vertex the model lacks is said of its flag.
+  expectOneLineError(run("simulate builtin:dodecahedron --steps 2 --force 20:1,0,0"), 2,
+                     "--force 20:1,0,0: force at vertex 20: no such vertex (the model has 20)");
+  // Fewer states than frames asked for: a frame per state, and a warning that says so.
+  const Result few =
+      run("render builtin:dodecahedron --frames 10 --steps 4 --size 64x64 --out " + path("few"));
+  EXPECT_EQ(few.status, 0) << few.err;
+  EXPECT_NE(few.err.find("warning: --frames 10: the run has 4 steps, so 5 frames"),
+            std::string::npos)
+      << few.err;
+  EXPECT_TRUE(fs::exists(path("few/frame_0004.png")));
+  EXPECT_FALSE(fs::exists(path("few/frame_0005.png")));
   // A run of a model at rest has no relative energy drift: said so, not "-nan".
   const Result still = run("simulate builtin:dodecahedron --steps 2");
   EXPECT_EQ(still.status, 0);

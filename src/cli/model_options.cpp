@@ -336,8 +336,17 @@ void RunOptions::prepare(const LoadedModel& loaded, Simulation& sim) const {
     for (const io::TimedLoad& t : loaded.scene->torques)
       sim.addTorque(TimedLoad{t.vertex, t.value, t.start, t.end});
   }
-  for (const std::string& f : forces) sim.addForce(parseTimedLoad(f, "--force"));
-  for (const std::string& t : torques) sim.addTorque(parseTimedLoad(t, "--torque"));
+  // A load the simulation refuses (a vertex out of range) is said of the flag that gave it.
+  auto addLoad = [&](const std::string& text, const char* flag, bool torque) {
+    const TimedLoad load = parseTimedLoad(text, flag);
+    try {
+      torque ? sim.addTorque(load) : sim.addForce(load);
+    } catch (const InvalidInputError& e) {
+      throw InvalidInputError(std::string(flag) + " " + text + ": " + e.what());
+    }
+  };
+  for (const std::string& f : forces) addLoad(f, "--force", false);
+  for (const std::string& t : torques) addLoad(t, "--torque", true);
   // Constraints (section 6): the scene's, then the flags'. Errors name where they came from.
   if (loaded.scene)
     for (size_t k = 0; k < loaded.scene->constraints.size(); ++k) {

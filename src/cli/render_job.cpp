@@ -56,6 +56,10 @@ std::vector<long> frameSteps(const RenderJobOptions& o, long& steps, bool explic
                                                   static_cast<double>(n - 1)));
     if (at.empty() || s != at.back()) at.push_back(s);
   }
+  // A run of fewer steps than frames asked for has a frame per step and no more.
+  if (o.frames && static_cast<long>(at.size()) < *o.frames)
+    std::cerr << "zsculpt: warning: --frames " << *o.frames << ": the run has " << steps
+              << " steps, so " << at.size() << " frames (one per state)\n";
   return at;
 }
 
