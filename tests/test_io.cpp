@@ -1224,6 +1224,9 @@ TEST_F(SceneFile, InvalidScenesNameTheJsonPathAndReason) {
       {with(R"("properties": {"rest_length_scale": -1})"),
        "/properties/rest_length_scale: must be >= 0"},
       {with(R"("properties": {"mass": 1e999})"), "number overflow"},
+      // A key given twice in one object (the parser kept the last one silently).
+      {with(R"("mesh": "builtin:grid")"), "/mesh: given twice"},
+      {with(R"("properties": {"mass": 1, "mass": 2})"), "/properties/mass: given twice"},
       // Unknown keys, at every level.
       {with(R"("meshes": 1)"), "/meshes: unknown key"},
       {with(R"("properties": {"stifness": 5})"),

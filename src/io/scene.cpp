@@ -639,8 +639,39 @@ SceneDescription sceneFromJson(const Json& json, const std::string& sceneFile) {
 SceneDescription parseScene(std::string_view text, const std::string& sceneFile) {
   const std::string name = sceneFile.empty() ? "<scene>" : sceneFile;
   Json json;
+  // A key given twice in one object: the parser keeps the last silently, so a scene that
+  // names "mesh" twice loaded whichever came second. Refused, as unknown keys are.
+  struct Level {
+    std::set<std::string> keys;
+    std::string key;  // the latest, for the path
+  };
+  std::vector<Level> objects;
+  std::string duplicate;
+  auto noDuplicateKeys = [&](int, Json::parse_event_t event, Json& parsed) {
+    switch (event) {
+      case Json::parse_event_t::object_start:
+        objects.emplace_back();
+        break;
+      case Json::parse_event_t::object_end:
+        if (!objects.empty()) objects.pop_back();
+        break;
+      case Json::parse_event_t::key: {
+        const std::string key = parsed.get<std::string>();
+        if (!objects.back().keys.insert(key).second && duplicate.empty()) {
+          std::string path;
+          for (size_t k = 0; k + 1 < objects.size(); ++k) path += "/" + objects[k].key;
+          duplicate = path + "/" + key;
+        }
+        objects.back().key = key;
+        break;
+      }
+      default:
+        break;
+    }
+    return true;
+  };
   try {
-    json = Json::parse(text);
+    json = Json::parse(text, noDuplicateKeys);
   } catch (const Json::exception& e) {
     // "[json.exception.parse_error.101] parse error at line 3, column 5: syntax error ..."
     std::string what = e.what();
@@ -650,6 +681,7 @@ SceneDescription parseScene(std::string_view text, const std::string& sceneFile)
     if (what.rfind(prefix, 0) == 0) what.erase(0, prefix.size());
     throw InvalidInputError(name + ": " + what);
   }
+  if (!duplicate.empty()) throw InvalidInputError(name + ": " + duplicate + ": given twice");
   return sceneFromJson(json, sceneFile);
 }
 
