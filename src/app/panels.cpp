@@ -64,8 +64,9 @@ std::array<float, 4> plot(const char* label, const std::array<float, PlotSeries:
   std::snprintf(overlay, sizeof overlay, "%s %.4g", label, static_cast<double>(last));
   // A width given, not -1: ImGui 1.86 (Debian 12's) takes a negative plot width literally, and
   // drew every plot as an empty sliver.
-  ImGui::PlotLines((std::string("##") + label).c_str(), data.data(), count, offset, overlay, lo, hi,
-                   ImVec2(width, height));
+  char id[64];  // no string built per frame
+  std::snprintf(id, sizeof id, "##%s", label);
+  ImGui::PlotLines(id, data.data(), count, offset, overlay, lo, hi, ImVec2(width, height));
   const ImVec2 min = ImGui::GetItemRectMin(), max = ImGui::GetItemRectMax();
   return {min.x, min.y, max.x, max.y};
 }
