@@ -2,6 +2,7 @@
 // picking, and (under Xvfb, when available) the window driven by a script.
 
 #include <gtest/gtest.h>
+#include <sys/wait.h>
 #include <unistd.h>
 
 #include <algorithm>
@@ -938,17 +939,35 @@ std::string readText(const fs::path& p) {
 // The window opens on the grid, a script drags a vertex (through picking and the drag tool)
 // and paints stiffness (through the paint tool), and screenshots show the model, the moved
 // vertex and the painted region in another colour.
+// The window tests run the program under Xvfb; without xvfb-run or the built program they
+// are skipped.
+#define ZSCULPT_SKIP_WITHOUT_WINDOW()                                                   \
+  do {                                                                                  \
+    if (std::system("command -v xvfb-run > /dev/null 2>&1") != 0)                       \
+      GTEST_SKIP() << "xvfb-run is not installed";                                      \
+    if (!fs::exists(ZSCULPT_BINARY)) GTEST_SKIP() << ZSCULPT_BINARY << " is not built"; \
+  } while (false)
+
+// `zsculpt open ARGS --script tests/data/app/SCRIPT --screenshot-out DIR` under Xvfb, its
+// output in DIR/log.txt; the exit status (timeout's 124 if it ran past two minutes).
+int runScriptedWindow(const std::string& args, const std::string& script, const fs::path& dir) {
+  const std::string command = std::string("timeout 120 xvfb-run -a -s \"-screen 0 1280x800x24\" ") +
+                              ZSCULPT_BINARY + " open " + args + " --script " +
+                              ZSCULPT_TEST_DATA_DIR + "/app/" + script + " --screenshot-out " +
+                              dir.string() + " > " + (dir / "log.txt").string() + " 2>&1";
+  const int raw = std::system(command.c_str());
+  return WIFEXITED(raw) ? WEXITSTATUS(raw) : -1;
+}
+
 TEST(Window, ScriptedDragAndPaintUnderXvfb) {
-  if (std::system("command -v xvfb-run > /dev/null 2>&1") != 0) GTEST_SKIP() << "xvfb-run is not installed";
-  if (!fs::exists(ZSCULPT_BINARY)) GTEST_SKIP() << ZSCULPT_BINARY << " is not built";
+  ZSCULPT_SKIP_WITHOUT_WINDOW();
   const fs::path dir = tempDir("window");
-  const std::string command = std::string("xvfb-run -a -s \"-screen 0 1280x800x24\" ") + ZSCULPT_BINARY +
-                              " open builtin:grid --damping 0.05 --speed 4 --script " + ZSCULPT_TEST_DATA_DIR +
-                              "/app/drag_and_paint.jsonl --screenshot-out " + dir.string() +
-                              " --state-out " + (dir / "final_state.csv").string() + " --record " +
-                              (dir / "session.jsonl").string() + " > " + (dir / "log.txt").string() +
-                              " 2>&1";
-  ASSERT_EQ(std::system(command.c_str()), 0) << readText(dir / "log.txt");
+  ASSERT_EQ(runScriptedWindow("builtin:grid --damping 0.05 --speed 4 --state-out " +
+                                  (dir / "final_state.csv").string() + " --record " +
+                                  (dir / "session.jsonl").string(),
+                              "drag_and_paint.jsonl", dir),
+            0)
+      << readText(dir / "log.txt");
 
   const nlohmann::json log = nlohmann::json::parse(readText(dir / "script_log.json"));
   std::map<std::string, nlohmann::json> probes;
@@ -1059,15 +1078,10 @@ TEST(Window, APressOnABoundaryVertexTakesIt) {
   // A corner's pixel straddles the surface's edge, so the ray through it can miss the
   // surface: the drag tool took nothing there (both corners below stayed put) until a press
   // off the surface took the vertex within a few pixels.
-  if (std::system("command -v xvfb-run > /dev/null 2>&1") != 0)
-    GTEST_SKIP() << "xvfb-run is not installed";
-  if (!fs::exists(ZSCULPT_BINARY)) GTEST_SKIP() << ZSCULPT_BINARY << " is not built";
+  ZSCULPT_SKIP_WITHOUT_WINDOW();
   const fs::path dir = tempDir("window_boundary");
-  const std::string command = std::string("xvfb-run -a -s \"-screen 0 1280x800x24\" ") +
-                              ZSCULPT_BINARY + " open builtin:grid --damping 0.05 --script " +
-                              ZSCULPT_TEST_DATA_DIR + "/app/boundary_pick.jsonl --screenshot-out " +
-                              dir.string() + " > " + (dir / "log.txt").string() + " 2>&1";
-  ASSERT_EQ(std::system(command.c_str()), 0) << readText(dir / "log.txt");
+  ASSERT_EQ(runScriptedWindow("builtin:grid --damping 0.05", "boundary_pick.jsonl", dir), 0)
+      << readText(dir / "log.txt");
   const nlohmann::json log = nlohmann::json::parse(readText(dir / "script_log.json"));
   std::map<std::string, Vec3> probes;
   for (const auto& entry : log) {
@@ -1093,15 +1107,10 @@ TEST(Window, APausedWaitIsSkippedAndPaintingShowsWhatItPaints) {
   // the play is a wait. Then a dab of mass on an uncoloured grid: choosing the paint tool
   // colours the surface by the painted property, so the dab shows (it changed nothing on
   // screen before).
-  if (std::system("command -v xvfb-run > /dev/null 2>&1") != 0)
-    GTEST_SKIP() << "xvfb-run is not installed";
-  if (!fs::exists(ZSCULPT_BINARY)) GTEST_SKIP() << ZSCULPT_BINARY << " is not built";
+  ZSCULPT_SKIP_WITHOUT_WINDOW();
   const fs::path dir = tempDir("window_paused_wait");
-  const std::string command = std::string("timeout 120 xvfb-run -a -s \"-screen 0 1280x800x24\" ") +
-                              ZSCULPT_BINARY + " open builtin:grid --damping 0.05 --script " +
-                              ZSCULPT_TEST_DATA_DIR + "/app/paused_wait.jsonl --screenshot-out " +
-                              dir.string() + " > " + (dir / "log.txt").string() + " 2>&1";
-  ASSERT_EQ(std::system(command.c_str()), 0) << readText(dir / "log.txt");
+  ASSERT_EQ(runScriptedWindow("builtin:grid --damping 0.05", "paused_wait.jsonl", dir), 0)
+      << readText(dir / "log.txt");
   const nlohmann::json log = nlohmann::json::parse(readText(dir / "script_log.json"));
   std::vector<std::string> errors;
   std::map<std::string, nlohmann::json> probes;
@@ -1135,9 +1144,7 @@ TEST(Window, ATerminatedSessionStillWritesItsRecordingAndState) {
   // SIGTERM (a closed terminal, a job killed by a pipeline) ended the window where it stood:
   // the recording and --state-out the command line asked for were lost. The window now closes
   // as from its button, writes both, and exits 143.
-  if (std::system("command -v xvfb-run > /dev/null 2>&1") != 0)
-    GTEST_SKIP() << "xvfb-run is not installed";
-  if (!fs::exists(ZSCULPT_BINARY)) GTEST_SKIP() << ZSCULPT_BINARY << " is not built";
+  ZSCULPT_SKIP_WITHOUT_WINDOW();
   const fs::path dir = tempDir("window_sigterm");
   const fs::path record = dir / "session.jsonl", state = dir / "state.csv", rc = dir / "rc.txt";
   // The window runs (and plays) until it is sent SIGTERM two seconds in.
