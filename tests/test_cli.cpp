@@ -593,6 +593,14 @@ TEST_F(Cli, ARefusedRunMakesNoFolderAndNamesTheFlagAtFault) {
       << few.err;
   EXPECT_TRUE(fs::exists(path("few/frame_0004.png")));
   EXPECT_FALSE(fs::exists(path("few/frame_0005.png")));
+  EXPECT_EQ(few.err.find("besides this run's"), std::string::npos) << few.err;
+  // Into the same folder again with fewer frames: the earlier run's last ones stay, and the
+  // run says so.
+  const Result fewer =
+      run("render builtin:dodecahedron --frames 3 --steps 4 --size 64x64 --out " + path("few"));
+  EXPECT_EQ(fewer.status, 0) << fewer.err;
+  EXPECT_NE(fewer.err.find("holds 2 frame_*.png besides this run's 3"), std::string::npos)
+      << fewer.err;
   // A run of a model at rest has no relative energy drift: said so, not "-nan".
   const Result still = run("simulate builtin:dodecahedron --steps 2");
   EXPECT_EQ(still.status, 0);

@@ -317,6 +317,7 @@ ReplayResult replay(const Recording& recording, const ReplayOptions& options) {
     renderer->renderPng(builder->build(snapshot, view, camera), options.width, options.height,
                         (std::filesystem::path(options.outDir) / name).string());
     ++result.framesWritten;
+    if (name.rfind("frame_", 0) == 0) ++result.numberedFramesWritten;
   };
   auto frameName = [](std::uint64_t cycle) {
     char name[32];

@@ -58,6 +58,8 @@ int runReplay(const ReplayOptions& o) {
     throw InvalidInputError(o.recording + ": " + e.what());  // which file the command was in
   }
   const double wall = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  if (options.frames)
+    warnAboutOtherFrames(o.out, static_cast<std::size_t>(r.numberedFramesWritten));
   // What the session said, as warnings; a run of the same notice (a model that diverges
   // every cycle) is told once, with its count.
   for (size_t k = 0; k < r.notices.size();) {

@@ -4,6 +4,7 @@
 #include <charconv>
 #include <cmath>
 #include <filesystem>
+#include <iostream>
 #include <sstream>
 
 #include "zsculpt/core/errors.h"
@@ -141,6 +142,20 @@ void checkDistinctOutputs(
                                 "'s file: one output would overwrite the other");
     seen.emplace_back(flag, file);
   }
+}
+
+void warnAboutOtherFrames(const std::string& dir, std::size_t written) {
+  namespace fs = std::filesystem;
+  std::error_code ec;
+  std::size_t frames = 0;
+  for (fs::directory_iterator it(dir, ec), end; !ec && it != end; it.increment(ec)) {
+    const std::string name = it->path().filename().string();
+    if (name.rfind("frame_", 0) == 0 && it->path().extension() == ".png") ++frames;
+  }
+  if (frames > written)
+    std::cerr << "zsculpt: warning: " << dir << " holds " << frames - written
+              << " frame_*.png besides this run's " << written
+              << " (an earlier run's: clear the folder to keep only these)\n";
 }
 
 Property propertyOption(const std::string& name) {

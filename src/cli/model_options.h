@@ -84,6 +84,10 @@ TimedLoad parseTimedLoad(const std::string& text, const std::string& flag);
 void checkDistinctOutputs(
     std::initializer_list<std::pair<const char*, const std::string*>> outputs);
 
+/// After a run wrote `written` frames (frame_*.png) into `dir`: a warning on standard error
+/// when the folder holds others too (an earlier run's, which this one did not overwrite).
+void warnAboutOtherFrames(const std::string& dir, std::size_t written);
+
 /// A property's name given to --property: its Property, or InvalidInputError "--property: ...".
 Property propertyOption(const std::string& name);
 

@@ -262,6 +262,7 @@ RenderJobResult runRenderJob(const RenderJobOptions& o) {
 }
 
 int reportRenderJob(const RenderJobOptions& o, const RenderJobResult& r, const std::string& source) {
+  warnAboutOtherFrames(o.out, r.frames.size());
   if (o.run.json) {
     std::cout << "{\n  \"frames\": [";
     for (size_t i = 0; i < r.frames.size(); ++i)

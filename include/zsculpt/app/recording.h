@@ -111,6 +111,7 @@ struct ReplayResult {
   /// Whether the recording's footer hash equals stateHash (absent: no footer).
   std::optional<bool> matchesRecording;
   int framesWritten = 0;
+  int numberedFramesWritten = 0;  ///< of them, frame_*.png (the others: final.png)
   std::vector<std::string> notices;
 };
 
