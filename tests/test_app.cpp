@@ -301,7 +301,18 @@ TEST(Session, TheStableLimitShownIsTheOneTheCommandLineGives) {
   session.apply(SetTimeStep{session.simulation().stepper().scheme(), 0.5 * (bound + tight)});
   session.fill(s, Property::Stiffness);
   EXPECT_EQ(s.stableLimit, tight);
+  EXPECT_TRUE(s.stableLimitTight);
   EXPECT_LE(s.period, s.stableLimit);  // the window shows no "above the stable limit"
+  // An edit keeps to the bound (the eigenvalue takes about half a second at 100k vertices,
+  // too long for a dab) and says the limit is a bound.
+  editing::Brush softer;
+  softer.property = Property::Mass;
+  softer.value = 0.6;
+  softer.radius = 1.5;
+  session.apply(Edit{editing::Dab{softer, editing::BrushCentre::atVertex(20)}});
+  session.fill(s, Property::Stiffness);
+  EXPECT_LT(s.stableLimit, s.period);
+  EXPECT_FALSE(s.stableLimitTight);
 }
 
 TEST(Session, AnEditTheSchemeRefusesChangesNothing) {

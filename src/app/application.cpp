@@ -338,8 +338,7 @@ void Window::message(std::string text) {
   if (scripted_) std::cerr << "zsculpt: " << text << "\n";
   log_.push_back(std::move(text));
   while (log_.size() > 200) log_.pop_front();
-  lastMessageAt_ =
-      std::chrono::duration<double>(std::chrono::steady_clock::now().time_since_epoch()).count();
+  lastMessageAt_ = std::chrono::steady_clock::now();
 }
 
 void Window::push(Command c) {

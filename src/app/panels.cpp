@@ -72,7 +72,7 @@ std::array<float, 4> plot(const char* label, const std::array<float, PlotSeries:
 }
 
 // How long the newest message stays under the status line.
-constexpr double kMessageSeconds = 8.0;
+constexpr std::chrono::seconds kMessageShown{8};
 
 }  // namespace
 
@@ -103,9 +103,7 @@ void Window::panels() {
   }
   // The newest message for a while under the status, where it is seen: the Messages panel
   // at the bottom of the sidebar is off screen on a small window.
-  const double now =
-      std::chrono::duration<double>(std::chrono::steady_clock::now().time_since_epoch()).count();
-  if (!log_.empty() && now - lastMessageAt_ < kMessageSeconds) {
+  if (!log_.empty() && std::chrono::steady_clock::now() - lastMessageAt_ < kMessageShown) {
     ImGui::PushStyleColor(ImGuiCol_Text, ImVec4(0.15f, 0.25f, 0.6f, 1));
     ImGui::TextWrapped("%s", log_.back().c_str());
     ImGui::PopStyleColor();
@@ -166,8 +164,11 @@ void Window::simulationPanel(const Snapshot& s) {
   if (!changed) ImGui::EndDisabled();
   ImGui::Text("T = %s = %.3f T_max,  T_max = %s", seconds(s.period).c_str(),
               std::isfinite(s.tMax) ? s.period / s.tMax : 0.0, seconds(s.tMax).c_str());
-  if (s.period > s.stableLimit)
+  if (s.period > s.stableLimit && s.stableLimitTight)
     ImGui::TextColored(ImVec4(0.8f, 0.1f, 0.1f, 1), "T is above the stable limit %s",
+                       seconds(s.stableLimit).c_str());
+  else if (s.period > s.stableLimit)
+    ImGui::TextColored(ImVec4(0.75f, 0.4f, 0.0f, 1), "T may be above the stable limit (bound %s)",
                        seconds(s.stableLimit).c_str());
   else if (changed && static_cast<int>(s.scheme) == schemeIndex_ && period > s.stableLimit)
     // Before it is applied: the limit shown is Gershgorin's bound, at most the tight one.

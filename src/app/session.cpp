@@ -140,7 +140,7 @@ Session::Session(SessionSetup setup)
   sizeLimit_ = kDivergenceScale *
                std::max({box.diagonal(), box.min.cwiseAbs().maxCoeff(), box.max.cwiseAbs().maxCoeff(), 1.0});
   region_ = editing::BrushRegion(mesh);
-  refreshLimits();
+  refreshLimits(true);
   if (std::isfinite(tMax_) && tMax_ > 0.0) periodFraction_ = sim_->period() / tMax_;
 }
 
@@ -175,16 +175,21 @@ std::vector<Index> Session::pins() const {
 
 // ---- commands -------------------------------------------------------------------------------
 
-void Session::refreshLimits() {
+void Session::refreshLimits(bool tight) {
   const SystemMatrices& system = sim_->stepper().system();
   tMax_ = criticalPeriod(system);
   const double maxDiagonal = system.omega2().size() > 0 ? system.omega2().diagonal().maxCoeff() : 0.0;
   stableLimit_ = maxDiagonal > 0.0 ? stablePeriodLimit(sim_->stepper().scheme(), 2.0 * maxDiagonal)
                                    : std::numeric_limits<double>::infinity();
-  // Gershgorin's bound is never above the tight limit: the largest eigenvalue is computed
-  // only for a period above it, as `zsculpt simulate` does, so that both give one limit.
-  if (sim_->period() > stableLimit_)
+  // Gershgorin's bound is never above the tight limit. For a period above it the largest
+  // eigenvalue gives the tight one, as `zsculpt simulate` does, so that both give one limit;
+  // but only when the period or the model is set (`tight`): an edit keeps to the bound, since
+  // the eigenvalue costs about half a second at 100k vertices and a dab must not.
+  stableLimitTight_ = !(sim_->period() > stableLimit_);
+  if (tight && !stableLimitTight_) {
     stableLimit_ = stablePeriodLimit(sim_->stepper().scheme(), largestEigenvalue(system));
+    stableLimitTight_ = true;
+  }
   scalarStale_ = true;
 }
 
@@ -252,7 +257,7 @@ void Session::apply(const Command& command) {
           [&](const SetTimeStep& s) {
             if (s.scheme == sim_->stepper().scheme() && s.period == sim_->period()) return;
             changeTimeStep(s.scheme, s.period);
-            refreshLimits();
+            refreshLimits(true);
             if (std::isfinite(tMax_) && tMax_ > 0.0) periodFraction_ = s.period / tMax_;
             unsaved_ = true;
           },
@@ -566,6 +571,7 @@ void Session::fill(Snapshot& out, Property scalarProperty) {
   out.period = sim_->period();
   out.tMax = tMax_;
   out.stableLimit = stableLimit_;
+  out.stableLimitTight = stableLimitTight_;
   out.substeps = sim_->substeps();
   out.gravity = model.properties.gravity;
   out.stiffnessCap = model.properties.stiffnessCap;

@@ -161,6 +161,11 @@ void SolverThread::loop() {
   Clock::time_point rateWall = wallAnchor;
   double rateSim = simAnchor;
   std::vector<std::string> notices;
+  auto postNotices = [&] {
+    session_->takeNotices(notices);
+    for (std::string& n : notices) postMessage(std::move(n));
+    notices.clear();
+  };
 
   for (;;) {
     std::uint64_t appliedBefore = applied_;
@@ -176,11 +181,7 @@ void SolverThread::loop() {
     bool changed = applied_ != appliedBefore || jobsRan;
     // What the commands had to say (an edit that lowered the time step) is said now, not at
     // the next cycle: a paused session may have none for a while.
-    if (changed) {
-      session_->takeNotices(notices);
-      for (std::string& n : notices) postMessage(std::move(n));
-      notices.clear();
-    }
+    if (changed) postNotices();
     if (stopping) {
       if (changed) publish();
       break;
@@ -238,9 +239,7 @@ void SolverThread::loop() {
       const double spent = seconds(Clock::now() - t0);
       stepSecondsAverage_ =
           stepSecondsAverage_ == 0.0 ? spent : 0.9 * stepSecondsAverage_ + 0.1 * spent;
-      session_->takeNotices(notices);
-      for (std::string& n : notices) postMessage(std::move(n));
-      notices.clear();
+      postNotices();
       if (outcome == Session::Outcome::Diverged) wasRunning = false;
       changed = true;
     }

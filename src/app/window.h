@@ -3,6 +3,7 @@
 // tools, scripts) and panels.cpp (the Dear ImGui panels).
 
 #include <array>
+#include <chrono>
 #include <deque>
 #include <limits>
 #include <memory>
@@ -191,8 +192,8 @@ class Window {
   std::string meshField_;
   int screenshotCounter_ = 0;
   std::deque<std::string> log_;
-  // When the newest message came (steady clock, seconds): it is shown under the status a while.
-  double lastMessageAt_ = -1e9;
+  // When the newest message came: it is shown under the status a while.
+  std::chrono::steady_clock::time_point lastMessageAt_{};
   bool showPlots_ = true;  // the energy and momentum strip across the top of the view
   std::string lastError_;
   bool quit_ = false;

@@ -83,9 +83,12 @@ struct Snapshot {
   Scheme scheme = Scheme::Default;
   double period = 0.0;
   double tMax = 0.0;          ///< equation 5 for the current properties
-  double stableLimit =
-      0.0;  ///< the scheme's stable period: Gershgorin's bound, or the tight limit (largest
-            ///< eigenvalue) for a period above that bound, as `zsculpt simulate` gives it
+  /// The scheme's stable period: Gershgorin's bound, or, for a period above it set by the
+  /// user, the tight limit (largest eigenvalue) that `zsculpt simulate` gives.
+  double stableLimit = 0.0;
+  /// stableLimit is the tight limit, or the period is within the bound; false: the period is
+  /// above the bound after an edit, and may still be stable.
+  bool stableLimitTight = true;
   int substeps = 1;           ///< steps in the last cycle (split when the motion is fast)
   Vec3 gravity = Vec3::Zero();
   double stiffnessCap = 0.0;
@@ -159,7 +162,9 @@ class Session {
  private:
   void changeTimeStep(Scheme scheme, double period);
   void reloadLoads();
-  void refreshLimits();
+  /// T_max and the stable limit; `tight`: the largest eigenvalue too, for a period above
+  /// Gershgorin's bound (when the period or the model is set, not after each edit).
+  void refreshLimits(bool tight = false);
   /// After an edit that lowered T_max: bring the period back to the chosen fraction of it
   /// (a rebuild of the stepper, with a notice), so painting stiffness never makes the
   /// running model diverge. A softer model keeps its period.
@@ -205,6 +210,7 @@ class Session {
   bool unsaved_ = false;
   double tMax_ = 0.0;
   double stableLimit_ = 0.0;
+  bool stableLimitTight_ = true;
   /// The period as a fraction of T_max that the user chose (start, or SetTimeStep).
   double periodFraction_ = 0.5;
 
