@@ -1151,6 +1151,71 @@ TEST(Window, APausedWaitIsSkippedAndPaintingShowsWhatItPaints) {
   fs::remove_all(dir);
 }
 
+TEST(Window, ScriptedKeysAndScrollActAsTheUsersKeysDo) {
+  // The keyboard shortcuts (docs/user-guide.md, "Keys") and the wheel, pressed by a script:
+  // the live window's keys and a script's `key` lines take one path (Window::shortcutKey).
+  ZSCULPT_SKIP_WITHOUT_WINDOW();
+  const fs::path dir = tempDir("window_keys");
+  ASSERT_EQ(runScriptedWindow("builtin:grid --damping 0.05", "keys.jsonl", dir), 0)
+      << readText(dir / "log.txt");
+  const nlohmann::json log = nlohmann::json::parse(readText(dir / "script_log.json"));
+  std::map<std::string, nlohmann::json> probe;
+  for (const auto& entry : log) {
+    EXPECT_FALSE(entry.contains("error")) << entry.dump();
+    if (entry.contains("probe")) probe[entry.at("probe").get<std::string>()] = entry;
+  }
+  for (const char* name :
+       {"start", "paint_tool", "painted", "undone", "redone", "radius_set", "strength_moved",
+        "strength_cancelled", "zoomed", "playing", "paused", "stepped"})
+    ASSERT_TRUE(probe.count(name)) << name;
+  auto at = [&](const char* name, const char* field) { return probe[name].at(field); };
+  // B: the paint tool; Ctrl+Z undoes the dab of mass 3, Ctrl+Shift+Z redoes it.
+  EXPECT_EQ(at("start", "tool"), "drag");
+  EXPECT_EQ(at("paint_tool", "tool"), "paint");
+  const double massBefore = at("paint_tool", "scalar").get<double>();
+  EXPECT_NE(massBefore, 3.0);
+  EXPECT_EQ(at("painted", "scalar").get<double>(), 3.0);
+  EXPECT_EQ(at("undone", "scalar").get<double>(), massBefore);
+  EXPECT_EQ(at("redone", "scalar").get<double>(), 3.0);
+  // F, a move to the right, Enter: a larger radius kept. Shift+F, a move, Escape: the
+  // strength changed while moving and went back.
+  EXPECT_GT(at("radius_set", "brush_radius").get<double>(), 2.5 + 1e-6);
+  EXPECT_NE(at("strength_moved", "brush_strength").get<double>(), 1.0);
+  EXPECT_EQ(at("strength_cancelled", "brush_strength").get<double>(), 1.0);
+  EXPECT_EQ(at("strength_cancelled", "brush_radius"), at("radius_set", "brush_radius"));
+  // Three clicks of the wheel bring the camera 0.88^3 as close.
+  EXPECT_NEAR(at("zoomed", "distance").get<double>(),
+              at("start", "distance").get<double>() * std::pow(0.88, 3), 1e-9);
+  // D: the drag tool; Space plays, Space pauses; the period steps one cycle.
+  EXPECT_EQ(at("playing", "tool"), "drag");
+  EXPECT_TRUE(at("playing", "running").get<bool>());
+  EXPECT_FALSE(at("paused", "running").get<bool>());
+  EXPECT_EQ(at("stepped", "cycle").get<std::uint64_t>(),
+            at("paused", "cycle").get<std::uint64_t>() + 1);
+  fs::remove_all(dir);
+}
+
+TEST(Window, AScriptWithAnUnknownKeyIsRefusedNamingItsLine) {
+  ZSCULPT_SKIP_WITHOUT_WINDOW();
+  const fs::path dir = tempDir("window_bad_key");
+  const fs::path script = dir / "bad.jsonl";
+  {
+    std::ofstream out(script);
+    out << "{\"ui\": \"key\", \"key\": \"space\"}\n{\"ui\": \"key\", \"key\": \"x\"}\n";
+  }
+  const std::string command = std::string("timeout 120 xvfb-run -a -s \"-screen 0 1280x800x24\" ") +
+                              ZSCULPT_BINARY + " open builtin:grid --script " + script.string() +
+                              " > " + (dir / "log.txt").string() + " 2>&1";
+  const int raw = std::system(command.c_str());
+  ASSERT_TRUE(WIFEXITED(raw));
+  EXPECT_EQ(WEXITSTATUS(raw), 2) << readText(dir / "log.txt");
+  EXPECT_NE(readText(dir / "log.txt")
+                .find(script.string() + ": line 2: key \"x\": not a shortcut (valid: z, "),
+            std::string::npos)
+      << readText(dir / "log.txt");
+  fs::remove_all(dir);
+}
+
 TEST(Window, ATerminatedSessionStillWritesItsRecordingAndState) {
   // SIGTERM (a closed terminal, a job killed by a pipeline) ended the window where it stood:
   // the recording and --state-out the command line asked for were lost. The window now closes

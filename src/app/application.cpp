@@ -11,6 +11,7 @@
 #include <filesystem>
 #include <fstream>
 #include <iostream>
+#include <utility>
 
 #define GLFW_INCLUDE_NONE
 #include <GLFW/glfw3.h>
@@ -53,16 +54,23 @@ void loadGl(F& f, const char* name) {
   if (f == nullptr) throw IOError(std::string("display: the OpenGL function ") + name + " is missing");
 }
 
+constexpr std::pair<const char*, Tool> kToolNames[] = {
+    {"orbit", Tool::Orbit},          {"drag", Tool::Drag},
+    {"paint", Tool::Paint},          {"pin", Tool::Pin},
+    {"normal_pin", Tool::NormalPin}, {"force", Tool::Force},
+    {"torque", Tool::Torque}};
+
 Tool toolFromName(const std::string& name) {
-  if (name == "orbit") return Tool::Orbit;
-  if (name == "drag") return Tool::Drag;
-  if (name == "paint") return Tool::Paint;
-  if (name == "pin") return Tool::Pin;
-  if (name == "normal_pin") return Tool::NormalPin;
-  if (name == "force") return Tool::Force;
-  if (name == "torque") return Tool::Torque;
+  for (const auto& [toolName, tool] : kToolNames)
+    if (name == toolName) return tool;
   throw InvalidInputError("tool \"" + name +
                           "\": unknown (valid: orbit, drag, paint, pin, normal_pin, force, torque)");
+}
+
+const char* nameOfTool(Tool tool) {
+  for (const auto& [toolName, t] : kToolNames)
+    if (t == tool) return toolName;
+  return "?";
 }
 
 }  // namespace
@@ -563,37 +571,62 @@ void Window::pointer(const PointerEvent& e) {
   lastY_ = e.y;
 }
 
+// The keys shortcutKey answers (what the Keys table of docs/user-guide.md lists), with the
+// names a script gives them.
+namespace {
+
+constexpr std::pair<const char*, int> kShortcutKeys[] = {
+    {"z", GLFW_KEY_Z},         {"y", GLFW_KEY_Y},           {"s", GLFW_KEY_S},
+    {"space", GLFW_KEY_SPACE}, {"period", GLFW_KEY_PERIOD}, {"home", GLFW_KEY_HOME},
+    {"f12", GLFW_KEY_F12},     {"escape", GLFW_KEY_ESCAPE}, {"enter", GLFW_KEY_ENTER},
+    {"f", GLFW_KEY_F},         {"q", GLFW_KEY_Q},           {"d", GLFW_KEY_D},
+    {"b", GLFW_KEY_B},         {"p", GLFW_KEY_P},           {"n", GLFW_KEY_N},
+    {"v", GLFW_KEY_V},         {"t", GLFW_KEY_T},           {"r", GLFW_KEY_R}};
+
+int shortcutKeyFromName(const std::string& name) {
+  for (const auto& [keyName, key] : kShortcutKeys)
+    if (name == keyName) return key;
+  std::string valid;
+  for (const auto& [keyName, key] : kShortcutKeys)
+    valid += (valid.empty() ? "" : ", ") + std::string(keyName);
+  throw InvalidInputError("key \"" + name + "\": not a shortcut (valid: " + valid + ")");
+}
+
+}  // namespace
+
 void Window::shortcuts() {
   const ImGuiIO& io = ImGui::GetIO();
   if (io.WantCaptureKeyboard) return;
-  auto pressed = [](int key) { return ImGui::IsKeyPressed(key, false); };
-  const bool ctrl = io.KeyCtrl, shift = io.KeyShift;
-  if (ctrl && pressed(GLFW_KEY_Z)) {
-    push(Edit{shift ? editing::EditCommand(editing::Redo{}) : editing::EditCommand(editing::Undo{})});
+  for (const auto& [name, key] : kShortcutKeys)
+    if (ImGui::IsKeyPressed(key, false))
+      shortcutKey(key, io.KeyCtrl, io.KeyShift, io.MousePos.x * pixelScale_,
+                  io.MousePos.y * pixelScale_);
+}
+
+// One key pressed with its modifiers, the pointer at (x, y) in framebuffer pixels: the live
+// window's keys and a script's `key` lines both come here.
+void Window::shortcutKey(int key, bool ctrl, bool shift, double x, double y) {
+  if (ctrl) {
+    if (key == GLFW_KEY_Z)
+      push(Edit{shift ? editing::EditCommand(editing::Redo{})
+                      : editing::EditCommand(editing::Undo{})});
+    if (key == GLFW_KEY_Y) push(Edit{editing::Redo{}});
+    if (key == GLFW_KEY_S) saveScene(sceneField_, false);
     return;
   }
-  if (ctrl && pressed(GLFW_KEY_Y)) {
-    push(Edit{editing::Redo{}});
-    return;
-  }
-  if (ctrl && pressed(GLFW_KEY_S)) {
-    saveScene(sceneField_, false);
-    return;
-  }
-  if (ctrl) return;
-  if (pressed(GLFW_KEY_SPACE)) push(solver_->current().running ? Command(Pause{}) : Command(Play{}));
-  if (pressed(GLFW_KEY_PERIOD)) push(StepOnce{});
-  if (pressed(GLFW_KEY_HOME)) frameModel();
-  if (pressed(GLFW_KEY_F12)) takeScreenshot("screenshot_" + std::to_string(++screenshotCounter_), true);
-  if (pressed(GLFW_KEY_ESCAPE)) {
+  if (key == GLFW_KEY_SPACE) push(solver_->current().running ? Command(Pause{}) : Command(Play{}));
+  if (key == GLFW_KEY_PERIOD) push(StepOnce{});
+  if (key == GLFW_KEY_HOME) frameModel();
+  if (key == GLFW_KEY_F12)
+    takeScreenshot("screenshot_" + std::to_string(++screenshotCounter_), true);
+  if (key == GLFW_KEY_ESCAPE) {
     if (adjust_ == Adjust::Radius) brush_.radius = adjustBefore_;
     if (adjust_ == Adjust::Strength) brush_.strength = adjustBefore_;
     adjust_ = Adjust::None;
   }
-  if (pressed(GLFW_KEY_ENTER)) adjust_ = Adjust::None;
-  if (pressed(GLFW_KEY_F) && gesture_ == Gesture::None) {
+  if (key == GLFW_KEY_ENTER) adjust_ = Adjust::None;
+  if (key == GLFW_KEY_F && gesture_ == Gesture::None) {
     // Blender: F then move the mouse sets the radius, Shift+F the strength; click confirms.
-    const double x = io.MousePos.x * pixelScale_, y = io.MousePos.y * pixelScale_;
     if (shift) {
       adjust_ = Adjust::Strength;
       adjustBefore_ = brush_.strength;
@@ -606,14 +639,14 @@ void Window::shortcuts() {
     adjustCentreY_ = y;
   }
   if (shift) return;
-  if (pressed(GLFW_KEY_Q)) tool_ = Tool::Orbit;
-  if (pressed(GLFW_KEY_D)) tool_ = Tool::Drag;
-  if (pressed(GLFW_KEY_B)) tool_ = Tool::Paint;
-  if (pressed(GLFW_KEY_P)) tool_ = Tool::Pin;
-  if (pressed(GLFW_KEY_N)) tool_ = Tool::NormalPin;
-  if (pressed(GLFW_KEY_V)) tool_ = Tool::Force;
-  if (pressed(GLFW_KEY_T)) tool_ = Tool::Torque;
-  if (pressed(GLFW_KEY_R)) push(Edit{editing::Relax{}});
+  if (key == GLFW_KEY_Q) tool_ = Tool::Orbit;
+  if (key == GLFW_KEY_D) tool_ = Tool::Drag;
+  if (key == GLFW_KEY_B) tool_ = Tool::Paint;
+  if (key == GLFW_KEY_P) tool_ = Tool::Pin;
+  if (key == GLFW_KEY_N) tool_ = Tool::NormalPin;
+  if (key == GLFW_KEY_V) tool_ = Tool::Force;
+  if (key == GLFW_KEY_T) tool_ = Tool::Torque;
+  if (key == GLFW_KEY_R) push(Edit{editing::Relax{}});
 }
 
 void Window::frameModel() {
@@ -793,15 +826,25 @@ void Window::loadScript(const std::string& path) {
     const std::string where = path + ": line " + std::to_string(line);
     if (!j.at("ui").is_string()) throw InvalidInputError(where + ": ui: expected an action name");
     const std::string action = j.at("ui").get<std::string>();
-    static const char* known[] = {"wait_frames", "wait_cycle", "wait_time", "wait_applied", "command",
-                                  "tool", "brush", "display", "camera", "mouse_down", "mouse_move",
-                                  "mouse_up", "screenshot", "probe", "save_scene", "save_mesh", "quit",
-                                  "frame"};
+    static const char* known[] = {"wait_frames", "wait_cycle", "wait_time",  "wait_applied",
+                                  "command",     "tool",       "brush",      "display",
+                                  "camera",      "mouse_down", "mouse_move", "mouse_up",
+                                  "screenshot",  "probe",      "save_scene", "save_mesh",
+                                  "quit",        "frame",      "key",        "scroll"};
     if (std::find_if(std::begin(known), std::end(known), [&](const char* k) { return action == k; }) ==
         std::end(known))
       throw InvalidInputError(where + ": ui: unknown action \"" + action + "\"");
     if (action == "command") commandFromJson(j.at("command"), where + ": command");
     if (action == "tool") toolFromName(j.value("tool", std::string()));
+    if (action == "key") {
+      if (!j.contains("key") || !j.at("key").is_string())
+        throw InvalidInputError(where + ": key: expected a key name");
+      try {
+        shortcutKeyFromName(j.at("key").get<std::string>());
+      } catch (const InvalidInputError& e) {
+        throw InvalidInputError(where + ": " + e.what());
+      }
+    }
   }
   script_ = script.ui;
   scriptPath_ = path;
@@ -925,6 +968,19 @@ void Window::stepScript() {
         }
         ++scriptNext_;
         return;  // one pointer event per frame, as a user's would be
+      } else if (action == "key") {
+        // As the key pressed over the view with the pointer where the script left it.
+        shortcutKey(shortcutKeyFromName(j.at("key").get<std::string>()), j.value("ctrl", false),
+                    j.value("shift", false), scriptX_, scriptY_);
+        ++scriptNext_;
+        return;  // one key per frame, as a user's would be
+      } else if (action == "scroll") {
+        if (auto e = scriptPointer(j, PointerEvent::Kind::Wheel)) {
+          e->wheel = j.value("clicks", 1.0);
+          pointer(*e);
+        }
+        ++scriptNext_;
+        return;
       } else if (action == "screenshot") {
         const std::string name = j.value("name", "script_" + std::to_string(line));
         const std::string what = j.value("what", std::string("both"));
@@ -955,10 +1011,19 @@ void Window::stepScript() {
           throw InvalidInputError("probe " + std::to_string(v) + ": no such vertex");
         const auto px = projectToPixel(camera_, viewWidth_, viewHeight_, s.position.row(v).transpose());
         if (px)
-          scriptLog_.push_back({{"frame", scriptFrame_}, {"probe", j.value("name", std::string())},
-                                {"vertex", v}, {"pixel", {px->x(), px->y()}},
-                                {"position", {s.position(v, 0), s.position(v, 1), s.position(v, 2)}},
-                                {"scalar", s.scalar.size() > v ? s.scalar[v] : 0.0}});
+          scriptLog_.push_back(
+              {{"frame", scriptFrame_},
+               {"probe", j.value("name", std::string())},
+               {"vertex", v},
+               {"pixel", {px->x(), px->y()}},
+               {"position", {s.position(v, 0), s.position(v, 1), s.position(v, 2)}},
+               {"scalar", s.scalar.size() > v ? s.scalar[v] : 0.0},
+               {"tool", nameOfTool(tool_)},
+               {"brush_radius", brush_.radius},
+               {"brush_strength", brush_.strength},
+               {"running", s.running},
+               {"cycle", s.cycle},
+               {"distance", camera_.distance}});
       } else if (action == "save_scene" || action == "save_mesh") {
         // Relative paths are relative to the screenshot folder, so a script's outputs stay
         // together.

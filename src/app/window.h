@@ -81,6 +81,7 @@ class Window {
   void readImGuiInput();
   void pointer(const PointerEvent& e);
   void shortcuts();
+  void shortcutKey(int key, bool ctrl, bool shift, double x, double y);
   void requestQuit();
   void takeScreenshot(const std::string& name, bool window);
   void captureWindow();
