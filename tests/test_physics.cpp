@@ -567,10 +567,12 @@ TEST(Schemes, LinearMomentumIsExactForEveryScheme) {
     State s0 = perturbed(model, 0.1, 5);
     s0.velocity.rowwise() += Eigen::RowVector3d(0.3, -0.1, 0.2);  // a drift to keep
     const double p0 = measure(model, s0).momentum.norm();
+    // 4000 steps: the exact scheme's drift, when it moved the centre of mass through its
+    // dense modes, grew as t^2 and passed this bound after about 800.
     const RunResult run =
-        simulate(model, scheme, scheme == Scheme::SymplecticEuler ? dt / 2 : dt, 400, s0);
+        simulate(model, scheme, scheme == Scheme::SymplecticEuler ? dt / 2 : dt, 4000, s0);
     EXPECT_TRUE(run.finite) << schemeName(scheme);
-    EXPECT_LT(run.maxMomentumDrift, 1e-12 * p0 * 1e2) << schemeName(scheme);
+    EXPECT_LT(run.maxMomentumDrift, 1e-14 * p0) << schemeName(scheme);
   }
 }
 
