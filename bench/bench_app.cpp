@@ -61,7 +61,11 @@ void BM_AppSolverCycleDragging(benchmark::State& state) {
   // Steps per cycle: a fast drag splits the cycle (SimulationSettings::substepStrain).
   state.counters["steps_per_cycle"] = steps / static_cast<double>(state.iterations());
 }
-BENCHMARK(BM_AppSolverCycleDragging)->Arg(40)->Arg(316)->Unit(benchmark::kMillisecond)->UseRealTime();
+BENCHMARK(BM_AppSolverCycleDragging)
+    ->Arg(40)
+    ->Arg(316)
+    ->Unit(benchmark::kMillisecond)
+    ->UseRealTime();
 
 // Publishing: copy positions, velocities, the display scalar, measure energy and momenta,
 // after a cycle as in the running application (whose diagnostics take the spring energies
@@ -97,7 +101,11 @@ void BM_AppSolverThread(benchmark::State& state) {
   }
   state.SetItemsProcessed(state.iterations() * state.range(1));  // items = cycles
 }
-BENCHMARK(BM_AppSolverThread)->Args({40, 200})->Args({316, 10})->Unit(benchmark::kMillisecond)->UseRealTime();
+BENCHMARK(BM_AppSolverThread)
+    ->Args({40, 200})
+    ->Args({316, 10})
+    ->Unit(benchmark::kMillisecond)
+    ->UseRealTime();
 
 // One display frame: the frame from the snapshot, subdivision refresh, draw, read back
 // (offscreen at 1280 x 720; the window skips the read-back).
@@ -126,7 +134,8 @@ void BM_AppFrame(benchmark::State& state) {
     benchmark::DoNotOptimize(image.rgba.data());
   }
   state.counters["levels"] = view.levels;
-  state.counters["drawn_vertices"] = builder.stencil() ? builder.stencil()->numRefinedVertices() : mesh.numVertices();
+  state.counters["drawn_vertices"] =
+      builder.stencil() ? builder.stencil()->numRefinedVertices() : mesh.numVertices();
 }
 BENCHMARK(BM_AppFrame)->Arg(40)->Arg(316)->Unit(benchmark::kMillisecond)->UseRealTime();
 

@@ -49,7 +49,8 @@ void runOneSecond(benchmark::State& state, const Model& model, bool pinned) {
 }
 
 void BM_RigidOneSecond(benchmark::State& state) {
-  const Model model = stiffTorus(static_cast<double>(state.range(0)), static_cast<double>(state.range(1)));
+  const Model model =
+      stiffTorus(static_cast<double>(state.range(0)), static_cast<double>(state.range(1)));
   runOneSecond(state, model, false);
 }
 BENCHMARK(BM_RigidOneSecond)
@@ -59,7 +60,8 @@ BENCHMARK(BM_RigidOneSecond)
     ->Unit(benchmark::kMillisecond);
 
 void BM_RigidOneSecondPinned(benchmark::State& state) {
-  const Model model = stiffTorus(static_cast<double>(state.range(0)), static_cast<double>(state.range(1)));
+  const Model model =
+      stiffTorus(static_cast<double>(state.range(0)), static_cast<double>(state.range(1)));
   runOneSecond(state, model, true);
 }
 BENCHMARK(BM_RigidOneSecondPinned)->Args({5000, 0})->Args({5000, 5})->Unit(benchmark::kMillisecond);

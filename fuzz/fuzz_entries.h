@@ -101,8 +101,7 @@ inline int commandLine(const std::uint8_t* data, std::size_t size) {
   std::vector<std::string> kept;
   for (size_t i = 0; i < args.size(); ++i) {
     const std::string& a = args[i];
-    if (a.find('/') != std::string::npos || a.find('\0') != std::string::npos ||
-        !smallBuiltin(a))
+    if (a.find('/') != std::string::npos || a.find('\0') != std::string::npos || !smallBuiltin(a))
       return -1;
     if (i > 0)
       for (const char* other : {"info", "simulate", "open", "demo", "render", "subdivide",

@@ -5,7 +5,7 @@
 set -euo pipefail
 
 packages=(
-  build-essential cmake pkg-config git
+  build-essential cmake pkg-config git clang-format
   libeigen3-dev
   libassimp-dev assimp-testmodels
   libgtest-dev libbenchmark-dev

@@ -1,3 +1,5 @@
 #include "zsculpt/cli/cli.h"
 
-int main(int argc, char** argv) { return zsculpt::cli::run(argc, argv); }
+int main(int argc, char** argv) {
+  return zsculpt::cli::run(argc, argv);
+}

@@ -38,8 +38,8 @@ namespace {
 namespace fs = std::filesystem;
 
 fs::path tempDir(const std::string& name) {
-  const fs::path dir = fs::temp_directory_path() / ("zsculpt_test_app_" + name + "_" +
-                                                    std::to_string(::getpid()));
+  const fs::path dir =
+      fs::temp_directory_path() / ("zsculpt_test_app_" + name + "_" + std::to_string(::getpid()));
   fs::remove_all(dir);
   fs::create_directories(dir);
   return dir;
@@ -223,8 +223,8 @@ TEST(Session, DragMovesTheVertexToItsTargetAndPinsHold) {
   }
   // Held to the simulation's constraint tolerance (SimulationSettings::positionTolerance,
   // relative to the model's size).
-  const double tolerance =
-      SimulationSettings{}.positionTolerance * std::max(1.0, session.model().mesh.boundingBox().diagonal());
+  const double tolerance = SimulationSettings{}.positionTolerance *
+                           std::max(1.0, session.model().mesh.boundingBox().diagonal());
   EXPECT_NEAR(session.state().position(27, 2), 2.0, tolerance);
   EXPECT_NEAR(session.state().position(0, 2), 0.0, tolerance);
   // The neighbours follow the dragged vertex (springs pull them up).
@@ -457,7 +457,7 @@ TEST(Session, PaintingStiffnessChangesTheProperty) {
   // Stiffer: the critical period shrank (equation 5), and the snapshot says so.
   Snapshot s;
   session.fill(s, Property::Stiffness);
-  EXPECT_LT(s.tMax, criticalPeriod(SystemMatrices(Model::fromMesh(makeGrid(8), {}))) );
+  EXPECT_LT(s.tMax, criticalPeriod(SystemMatrices(Model::fromMesh(makeGrid(8), {}))));
   EXPECT_DOUBLE_EQ(s.scalar[27], 50.0);
   session.apply(Edit{editing::Undo{}});
   EXPECT_DOUBLE_EQ(session.model().properties.stiffness[27], 5.0);
@@ -505,7 +505,8 @@ TEST(Session, DivergenceRollsBackPausesAndSaysSo) {
   for (int k = 0; k < 40; ++k) ASSERT_EQ(session.advance(), Session::Outcome::Stepped) << k;
   session.apply(SetTimeStep{Scheme::Default, 300.0 * session.simulation().period()});
   Session::Outcome outcome = Session::Outcome::Stepped;
-  for (int k = 0; k < 5000 && outcome == Session::Outcome::Stepped; ++k) outcome = session.advance();
+  for (int k = 0; k < 5000 && outcome == Session::Outcome::Stepped; ++k)
+    outcome = session.advance();
   ASSERT_EQ(outcome, Session::Outcome::Diverged);
   EXPECT_FALSE(session.running());
   ASSERT_TRUE(session.lastDivergence().has_value());
@@ -524,13 +525,15 @@ TEST(Session, SameCommandsSameCyclesSameBits) {
     Session session(gridSetup(9));
     std::mt19937 rng(5);
     for (int cycle = 0; cycle < 200; ++cycle) {
-      if (cycle % 7 == 0) session.apply(AddLoad{LoadKind::Force, static_cast<Index>(rng() % 81),
-                                                Vec3(0, 0, 0.3), 0.2});
+      if (cycle % 7 == 0)
+        session.apply(
+            AddLoad{LoadKind::Force, static_cast<Index>(rng() % 81), Vec3(0, 0, 0.3), 0.2});
       if (cycle % 11 == 0) {
         editing::Brush b;
         b.value = 1.0 + cycle % 5;
         b.radius = 1.2;
-        session.apply(Edit{editing::Dab{b, editing::BrushCentre::atVertex(static_cast<Index>(rng() % 81))}});
+        session.apply(
+            Edit{editing::Dab{b, editing::BrushCentre::atVertex(static_cast<Index>(rng() % 81))}});
       }
       if (cycle == 50) session.apply(DragStart{40, session.state().position.row(40).transpose()});
       if (cycle > 50 && cycle < 120) session.apply(DragMove{Vec3(4, 4, 0.01 * (cycle - 50))});
@@ -567,17 +570,32 @@ TEST(SolverThread, CommandStormWhileReadingSnapshots) {
   std::thread storm([&] {
     std::mt19937 rng(1);
     for (int i = 0; i < 3000; ++i) {
-      const Index v = static_cast<Index>(rng() % static_cast<unsigned>(n + 3));  // some out of range
+      const Index v =
+          static_cast<Index>(rng() % static_cast<unsigned>(n + 3));  // some out of range
       const int kind = static_cast<int>(rng() % 12);
       if (kind != 11) ++pushed;  // 11 is a display setting, not a command
       switch (kind) {
-        case 0: solver.push(Pin{v, std::nullopt}); break;
-        case 1: solver.push(Unpin{v}); break;
-        case 2: solver.push(AddLoad{LoadKind::Force, v, Vec3(0, 0, 0.2), 0.1}); break;
-        case 3: solver.push(AddLoad{LoadKind::Torque, v, Vec3(0, 0, 0.05), 0.1}); break;
-        case 4: solver.push(DragStart{v, Vec3(5, 5, 0.5)}); break;
-        case 5: solver.push(DragMove{Vec3(5, 5, 0.001 * (i % 100))}); break;
-        case 6: solver.push(DragEnd{}); break;
+        case 0:
+          solver.push(Pin{v, std::nullopt});
+          break;
+        case 1:
+          solver.push(Unpin{v});
+          break;
+        case 2:
+          solver.push(AddLoad{LoadKind::Force, v, Vec3(0, 0, 0.2), 0.1});
+          break;
+        case 3:
+          solver.push(AddLoad{LoadKind::Torque, v, Vec3(0, 0, 0.05), 0.1});
+          break;
+        case 4:
+          solver.push(DragStart{v, Vec3(5, 5, 0.5)});
+          break;
+        case 5:
+          solver.push(DragMove{Vec3(5, 5, 0.001 * (i % 100))});
+          break;
+        case 6:
+          solver.push(DragEnd{});
+          break;
         case 7: {
           editing::Brush b;
           b.property = Property::Stiffness;
@@ -586,10 +604,18 @@ TEST(SolverThread, CommandStormWhileReadingSnapshots) {
           solver.push(Edit{editing::Dab{b, editing::BrushCentre::atVertex(v)}});
           break;
         }
-        case 8: solver.push(Edit{editing::Undo{}}); break;
-        case 9: solver.push(i % 2 ? Command(Pause{}) : Command(Play{})); break;
-        case 10: solver.push(StepOnce{}); break;
-        case 11: solver.setDisplayProperty(i % 2 ? Property::Stiffness : Property::Mass); break;
+        case 8:
+          solver.push(Edit{editing::Undo{}});
+          break;
+        case 9:
+          solver.push(i % 2 ? Command(Pause{}) : Command(Play{}));
+          break;
+        case 10:
+          solver.push(StepOnce{});
+          break;
+        case 11:
+          solver.setDisplayProperty(i % 2 ? Property::Stiffness : Property::Mass);
+          break;
       }
 
       if (i % 64 == 0) std::this_thread::yield();
@@ -630,8 +656,8 @@ TEST(SolverThread, CommandStormWhileReadingSnapshots) {
       }
     }
     ASSERT_LT(std::chrono::steady_clock::now(), deadline)
-        << "the storm did not finish: " << snapshots << " snapshots, " << s.commandsApplied << " of "
-        << pushed.load() << " commands applied";
+        << "the storm did not finish: " << snapshots << " snapshots, " << s.commandsApplied
+        << " of " << pushed.load() << " commands applied";
   }
   solver.stop();
   // Refused commands (vertices out of range) were reported, not fatal.
@@ -746,12 +772,15 @@ TEST(Recording, ReplayTwiceGivesTheLiveStateBitForBit) {
   for (int i = 0; i < 120; ++i) {
     const Index v = static_cast<Index>(rng() % 100);
     switch (i % 6) {
-      case 0: solver.push(AddLoad{LoadKind::Force, v, Vec3(0.1, 0, 0.4), 0.2}); break;
+      case 0:
+        solver.push(AddLoad{LoadKind::Force, v, Vec3(0.1, 0, 0.4), 0.2});
+        break;
       case 1: {
         editing::Brush b;
         b.value = 3.0 + i % 4;
         b.radius = 1.3;
-        solver.push(Edit{editing::Dab{b, editing::BrushCentre::onFace(v % 81, Vec3(v % 9 + 0.5, v / 10 + 0.5, 0))}});
+        solver.push(Edit{editing::Dab{
+            b, editing::BrushCentre::onFace(v % 81, Vec3(v % 9 + 0.5, v / 10 + 0.5, 0))}});
         break;
       }
       case 2:
@@ -761,8 +790,12 @@ TEST(Recording, ReplayTwiceGivesTheLiveStateBitForBit) {
       case 3:
         solver.push(DragMove{Vec3(dragged % 10, dragged / 10, 0.01 * i)});
         break;
-      case 4: solver.push(i % 4 ? Command(DragEnd{}) : Command(Pin{v, std::nullopt})); break;
-      case 5: solver.push(i % 5 ? Command(Edit{editing::Undo{}}) : Command(Pause{})); break;
+      case 4:
+        solver.push(i % 4 ? Command(DragEnd{}) : Command(Pin{v, std::nullopt}));
+        break;
+      case 5:
+        solver.push(i % 5 ? Command(Edit{editing::Undo{}}) : Command(Pause{}));
+        break;
     }
     if (i % 25 == 24) solver.push(Play{});
     std::this_thread::sleep_for(std::chrono::microseconds(300 + rng() % 2000));
@@ -858,7 +891,6 @@ TEST(Recording, DefaultSceneLoads) {
   EXPECT_GT(session.simulation().forces().size() + session.simulation().torques().size(), 1u);
 }
 
-
 // ---- picking ----------------------------------------------------------------------------------
 
 TEST(Picking, RaysAndProjectionsAgree) {
@@ -879,7 +911,8 @@ TEST(Picking, RaysAndProjectionsAgree) {
     EXPECT_LT((r - r.dot(ray.direction) * ray.direction).norm(), 1e-9);
   }
   // Behind the eye: no pixel.
-  EXPECT_FALSE(projectToPixel(camera, w, h, camera.eye() + (camera.eye() - camera.target)).has_value());
+  EXPECT_FALSE(
+      projectToPixel(camera, w, h, camera.eye() + (camera.eye() - camera.target)).has_value());
 }
 
 TEST(Picking, RayHitsTheFaceUnderItAndItsNearestCorner) {
@@ -986,7 +1019,8 @@ TEST(Window, ScriptedDragAndPaintUnderXvfb) {
     EXPECT_FALSE(entry.contains("error")) << entry.dump();
     if (entry.contains("probe")) probes[entry.at("probe").get<std::string>()] = entry;
   }
-  for (const char* name : {"drag_start", "drag_held", "paint_before", "paint_after", "far_before", "far_after"})
+  for (const char* name :
+       {"drag_start", "drag_held", "paint_before", "paint_after", "far_before", "far_after"})
     ASSERT_TRUE(probes.count(name)) << name;
   auto position = [&](const char* name) {
     const auto& p = probes[name].at("position");
@@ -1033,7 +1067,8 @@ TEST(Window, ScriptedDragAndPaintUnderXvfb) {
     const int x = static_cast<int>(probe.at("pixel")[0].get<double>());
     const int y = static_cast<int>(probe.at("pixel")[1].get<double>());
     EXPECT_TRUE(x >= 0 && x < image.width && y >= 0 && y < image.height);
-    const std::uint8_t* p = image.pixel(std::clamp(x, 0, image.width - 1), std::clamp(y, 0, image.height - 1));
+    const std::uint8_t* p =
+        image.pixel(std::clamp(x, 0, image.width - 1), std::clamp(y, 0, image.height - 1));
     return Eigen::Vector3d(p[0], p[1], p[2]);
   };
   // The model is in the picture: the painted vertex's pixel is not the background's.
@@ -1041,8 +1076,14 @@ TEST(Window, ScriptedDragAndPaintUnderXvfb) {
   const Eigen::Vector3d background(corner[0], corner[1], corner[2]);
   EXPECT_GT((pixelAt(before, probes["paint_before"]) - background).cwiseAbs().sum(), 40.0);
   // The painted region changed colour; far from it (paused: nothing moved) it did not.
-  EXPECT_GT((pixelAt(after, probes["paint_after"]) - pixelAt(before, probes["paint_before"])).cwiseAbs().sum(), 60.0);
-  EXPECT_LT((pixelAt(after, probes["far_after"]) - pixelAt(before, probes["far_before"])).cwiseAbs().sum(), 12.0);
+  EXPECT_GT((pixelAt(after, probes["paint_after"]) - pixelAt(before, probes["paint_before"]))
+                .cwiseAbs()
+                .sum(),
+            60.0);
+  EXPECT_LT((pixelAt(after, probes["far_after"]) - pixelAt(before, probes["far_before"]))
+                .cwiseAbs()
+                .sum(),
+            12.0);
   // The dab's centre is the ray's hit on the displayed (refined) surface through the
   // vertex's pixel. The refined surface passes through the vertex only where the model is
   // flat around it; how bent the grid still is when the script pauses depends on the
@@ -1068,7 +1109,8 @@ TEST(Window, ScriptedDragAndPaintUnderXvfb) {
   // The saved scene carries the painted stiffness.
   const io::SceneDescription scene = io::loadScene((dir / "sculpted.json").string());
   const Model model = io::buildModel(scene, makeGrid(18));
-  EXPECT_DOUBLE_EQ(model.properties.stiffness[40], probes["paint_after"].at("scalar").get<double>());
+  EXPECT_DOUBLE_EQ(model.properties.stiffness[40],
+                   probes["paint_after"].at("scalar").get<double>());
   EXPECT_DOUBLE_EQ(model.properties.stiffness[300], 5.0);
   // And the view as the script left it (the scene's own camera was saved before).
   ASSERT_TRUE(scene.camera.yaw && scene.camera.pitch);

@@ -112,14 +112,15 @@ TEST_F(Cli, InfoOfAnAssimpFileWeldsIt) {
 }
 
 TEST_F(Cli, SimulateJsonSummaryAndFiles) {
-  const Result r = run("simulate builtin:torus --mass 0.1 --perturb 0.05 --seed 3 --steps 200 "
-                       "--dt-ratio 0.5 --json --csv " + path("d.csv") + " --state-out " +
-                       path("s.csv"));
+  const Result r =
+      run("simulate builtin:torus --mass 0.1 --perturb 0.05 --seed 3 --steps 200 "
+          "--dt-ratio 0.5 --json --csv " +
+          path("d.csv") + " --state-out " + path("s.csv"));
   ASSERT_EQ(r.status, 0) << r.err;
   const auto j = nlohmann::json::parse(r.out);
-  for (const char* key : {"scheme", "dt", "t_max", "steps", "diverged", "diverged_at_step",
-                          "energy_start", "energy_end", "energy_drift", "momentum_drift",
-                          "angular_momentum_drift", "wall_seconds"})
+  for (const char* key :
+       {"scheme", "dt", "t_max", "steps", "diverged", "diverged_at_step", "energy_start",
+        "energy_end", "energy_drift", "momentum_drift", "angular_momentum_drift", "wall_seconds"})
     EXPECT_TRUE(j.contains(key)) << key;
   EXPECT_EQ(j["scheme"], "default");
   EXPECT_EQ(j["steps"], 200);
@@ -149,8 +150,9 @@ TEST_F(Cli, StateOutThenStateInContinuesTheRunExactly) {
 TEST_F(Cli, TheDefaultFiltersTheDriftOnBracedModelsAndNoDriftFilterTurnsItOff) {
   // Issue 3's check through the command line: the default scheme, braced dodecahedron
   // (angle springs at every vertex), 1e5 steps at 0.9 T_max from a random velocity.
-  const std::string braced = "simulate builtin:dodecahedron --mass 0.5 --stiffness 5 "
-                             "--angular-stiffness 0.5 --perturb 0.1 --dt-ratio 0.9 ";
+  const std::string braced =
+      "simulate builtin:dodecahedron --mass 0.5 --stiffness 5 "
+      "--angular-stiffness 0.5 --perturb 0.1 --dt-ratio 0.9 ";
   const Result r = run(braced + "--steps 100000 --json");
   ASSERT_EQ(r.status, 0) << r.err;
   const auto j = nlohmann::json::parse(r.out);
@@ -215,15 +217,17 @@ TEST_F(Cli, AStepAboveTheStableLimitIsRefusedWithTheLimit) {
   const Result r = run("simulate builtin:dodecahedron --dt-ratio 1.2");
   expectOneLineError(r, 2, "stable limit");
   EXPECT_NE(r.err.find("1.0704"), std::string::npos) << r.err;
-  EXPECT_EQ(run("simulate builtin:dodecahedron --dt-ratio 1.2 --steps 10 --allow-unstable").status, 0);
-  expectOneLineError(run("simulate builtin:dodecahedron --scheme symplectic-euler --dt-ratio 0.7"), 2,
-                     "symplectic-euler");
+  EXPECT_EQ(run("simulate builtin:dodecahedron --dt-ratio 1.2 --steps 10 --allow-unstable").status,
+            0);
+  expectOneLineError(run("simulate builtin:dodecahedron --scheme symplectic-euler --dt-ratio 0.7"),
+                     2, "symplectic-euler");
 }
 
 TEST_F(Cli, DivergenceExitsThreeAndWritesTheLastFiniteState) {
-  const Result r = run("simulate builtin:dodecahedron --scheme paper --perturb 0.05 --dt-ratio 1.3 "
-                       "--allow-unstable --steps 100000 --json --state-out " + path("s.csv") +
-                       " --csv " + path("d.csv"));
+  const Result r =
+      run("simulate builtin:dodecahedron --scheme paper --perturb 0.05 --dt-ratio 1.3 "
+          "--allow-unstable --steps 100000 --json --state-out " +
+          path("s.csv") + " --csv " + path("d.csv"));
   EXPECT_EQ(r.status, 3) << r.err;
   const auto j = nlohmann::json::parse(r.out);
   EXPECT_EQ(j["diverged"], true);
@@ -238,7 +242,8 @@ TEST_F(Cli, DivergenceExitsThreeAndWritesTheLastFiniteState) {
 TEST_F(Cli, BadInputGetsOneLineAndExitTwoAndNoOutputFile) {
   expectOneLineError(run("info " + path("missing.obj")), 2, "missing.obj");
   expectOneLineError(run("info builtin:cube"), 2, "builtin:cube");
-  expectOneLineError(run("simulate builtin:grid --mass -1 --state-out " + path("s.csv")), 2, "--mass");
+  expectOneLineError(run("simulate builtin:grid --mass -1 --state-out " + path("s.csv")), 2,
+                     "--mass");
   EXPECT_FALSE(fs::exists(path("s.csv")));
   expectOneLineError(run("simulate builtin:grid --rigidity 2"), 2, "--rigidity");
   expectOneLineError(run("simulate builtin:grid --scheme rk4"), 2, "rk4");
@@ -464,7 +469,9 @@ double coverage(const zsculpt::render::Image& image) {
   return static_cast<double>(covered) / (static_cast<double>(image.width) * image.height);
 }
 
-long lineCount(const std::string& text) { return std::count(text.begin(), text.end(), '\n'); }
+long lineCount(const std::string& text) {
+  return std::count(text.begin(), text.end(), '\n');
+}
 
 }  // namespace
 
@@ -516,12 +523,14 @@ TEST_F(Cli, RenderOfAStillModelGivesIdenticalFrames) {
 
 TEST_F(Cli, RenderRefusesBadInputBeforeAnyWork) {
   expectOneLineError(run("render builtin:torus --out " + path("a") + " --size 0x100"), 2, "--size");
-  expectOneLineError(run("render builtin:torus --out " + path("b") + " --size 100000x100"), 2, "--size");
+  expectOneLineError(run("render builtin:torus --out " + path("b") + " --size 100000x100"), 2,
+                     "--size");
   expectOneLineError(run("render builtin:torus --out " + path("c") + " --property colour"), 2,
                      "--property: unknown property 'colour'");
   expectOneLineError(run("render builtin:torus --out " + path("d") + " --levels 9"), 2, "--levels");
   expectOneLineError(run("render builtin:torus --out /proc/zsculpt/frames"), 2, "/proc/zsculpt");
-  expectOneLineError(run("render " + path("missing.obj") + " --out " + path("e")), 2, "missing.obj");
+  expectOneLineError(run("render " + path("missing.obj") + " --out " + path("e")), 2,
+                     "missing.obj");
   expectOneLineError(run("render builtin:torus --out " + path("f") + " --frames 0"), 2, "--frames");
   expectOneLineError(run("render builtin:torus --out " + path("g/h") + " --every 0"), 2, "--every");
   // A refused run leaves not even an empty folder (it was made before the checks).
@@ -608,9 +617,10 @@ TEST_F(Cli, ARefusedRunMakesNoFolderAndNamesTheFlagAtFault) {
 }
 
 TEST_F(Cli, RenderDivergenceExitsThreeKeepingWhatWasRendered) {
-  const Result r = run("render builtin:dodecahedron --scheme paper --perturb 0.05 --dt-ratio 1.3 "
-                       "--allow-unstable --steps 20000 --every 50 --size 160x120 --out " + path("out") +
-                       " --state-out " + path("s.csv") + " --json");
+  const Result r =
+      run("render builtin:dodecahedron --scheme paper --perturb 0.05 --dt-ratio 1.3 "
+          "--allow-unstable --steps 20000 --every 50 --size 160x120 --out " +
+          path("out") + " --state-out " + path("s.csv") + " --json");
   EXPECT_EQ(r.status, 3) << r.err;
   const auto j = nlohmann::json::parse(r.out);
   EXPECT_EQ(j["diverged"], true);
@@ -625,7 +635,8 @@ TEST_F(Cli, RenderDivergenceExitsThreeKeepingWhatWasRendered) {
 TEST_F(Cli, DemoWritesTheDefaultSceneToFramesAndPlotsAndPrintsThePaths) {
   const Result r = run("demo --out " + path("demo") + " --frames 4 --size 320x180");
   ASSERT_EQ(r.status, 0) << r.err;
-  for (const char* f : {"frame_0000.png", "frame_0003.png", "diagnostics.csv", "energy_momentum.png"}) {
+  for (const char* f :
+       {"frame_0000.png", "frame_0003.png", "diagnostics.csv", "energy_momentum.png"}) {
     EXPECT_TRUE(fs::exists(dir_ / "demo" / f)) << f;
     EXPECT_NE(r.out.find(f), std::string::npos) << r.out;
   }
@@ -645,7 +656,8 @@ long countHue(const zsculpt::render::Image& image, bool red) {
     for (int x = 0; x < image.width; ++x) {
       const std::uint8_t* p = image.pixel(x, y);
       const int r = p[0], g = p[1], b = p[2];
-      n += red ? (r > 140 && g < 90 && b < 90 && r > 2 * g) : (b > 140 && r < 90 && g < 150 && b > 2 * r);
+      n += red ? (r > 140 && g < 90 && b < 90 && r > 2 * g)
+               : (b > 140 && r < 90 && g < 150 && b > 2 * r);
     }
   return n;
 }
@@ -653,8 +665,7 @@ long countHue(const zsculpt::render::Image& image, bool red) {
 /// Panel `k` of a figure's row of 640 x 480 panels, 6 pixels apart.
 zsculpt::render::Image panel(const zsculpt::render::Image& row, int k) {
   zsculpt::render::Image out(640, 480);
-  for (int y = 0; y < 480; ++y)
-    std::copy_n(row.pixel(k * (640 + 6), y), 640 * 4, out.pixel(0, y));
+  for (int y = 0; y < 480; ++y) std::copy_n(row.pixel(k * (640 + 6), y), 640 * 4, out.pixel(0, y));
   return out;
 }
 
@@ -752,8 +763,9 @@ TEST_F(Cli, RunawayEnergyIsCaughtBeforeTheStateIsNonFinite) {
   // Equation 3 above its stable period: the energy grows by a constant factor per step.
   // The guard stops it while every number is still finite and writes a checkpoint from
   // before the blow-up.
-  const std::string common = "simulate builtin:dodecahedron --scheme paper --perturb 0.05 "
-                             "--dt-ratio 1.3 --allow-unstable --steps 100000 --json";
+  const std::string common =
+      "simulate builtin:dodecahedron --scheme paper --perturb 0.05 "
+      "--dt-ratio 1.3 --allow-unstable --steps 100000 --json";
   const Result r = run(common + " --state-out " + path("s.csv") + " --csv " + path("d.csv"));
   ASSERT_EQ(r.status, 3) << r.err;
   EXPECT_NE(r.err.find("the energy ran away"), std::string::npos) << r.err;
@@ -767,16 +779,21 @@ TEST_F(Cli, RunawayEnergyIsCaughtBeforeTheStateIsNonFinite) {
   // The state written is the checkpoint: its energy is that of the start, not the blow-up.
   const std::string state = slurp(path("s.csv"));
   EXPECT_EQ(lineCount(state), 21);
-  const Result resumed = run("simulate builtin:dodecahedron --steps 1 --json --state-in " + path("s.csv"));
+  const Result resumed =
+      run("simulate builtin:dodecahedron --steps 1 --json --state-in " + path("s.csv"));
   ASSERT_EQ(resumed.status, 0) << resumed.err;
   const auto k = nlohmann::json::parse(resumed.out);
-  EXPECT_LT(k["energy_start"].get<double>(), 10.0 * j["energy_start"].get<double>()) << "diverged at " << at;
+  EXPECT_LT(k["energy_start"].get<double>(), 10.0 * j["energy_start"].get<double>())
+      << "diverged at " << at;
 
   // No false alarm where energy only changes form: a grid pinned at two corners falls under
   // gravity (total energy near 0, kinetic and potential in hundreds of kilojoules), and a
   // torus pushed and twisted.
-  EXPECT_EQ(run("simulate builtin:grid --gravity 0,0,-9.81 --pin 0 --pin 17 --steps 3000").status, 0);
-  EXPECT_EQ(run("simulate builtin:torus --force 3:0,0,5:0:1 --torque 50:0,0,2:0:2 --steps 3000").status, 0);
+  EXPECT_EQ(run("simulate builtin:grid --gravity 0,0,-9.81 --pin 0 --pin 17 --steps 3000").status,
+            0);
+  EXPECT_EQ(
+      run("simulate builtin:torus --force 3:0,0,5:0:1 --torque 50:0,0,2:0:2 --steps 3000").status,
+      0);
 }
 
 TEST_F(Cli, BenchTimesOneModelAndUnderADrag) {

@@ -126,16 +126,16 @@ TEST(ConstraintSet, BadInputGetsAClearError) {
   EXPECT_EQ(set.takeWarnings().size(), 1u);
   EXPECT_TRUE(set.takeWarnings().empty());
   set.addNormal(d, d.positions(), 2, Vec3(0, 0, 1));
-  EXPECT_TRUE(throwsWith([&] { set.addNormal(d, d.positions(), 2, Vec3(0, 1, 0)); },
-                         "different normals"));
+  EXPECT_TRUE(
+      throwsWith([&] { set.addNormal(d, d.positions(), 2, Vec3(0, 1, 0)); }, "different normals"));
 
   const Mesh h = makeHelix(6);
   EXPECT_TRUE(throwsWith([&] { set.addNormal(h, h.positions(), 0, Vec3::UnitZ()); }, "curve end"));
   Points straight(3, 3);
   straight << 0, 0, 0, 1, 0, 0, 2, 0, 0;
   const Mesh line(straight, {}, {{0, 1}, {1, 2}});
-  EXPECT_TRUE(throwsWith([&] { set.addNormal(line, line.positions(), 1, Vec3::UnitZ()); },
-                         "collinear"));
+  EXPECT_TRUE(
+      throwsWith([&] { set.addNormal(line, line.positions(), 1, Vec3::UnitZ()); }, "collinear"));
   Points lonely(4, 3);
   lonely << 0, 0, 0, 1, 0, 0, 0, 1, 0, 3, 3, 3;
   const Mesh withIsolated(lonely, {{0, 1, 2}});

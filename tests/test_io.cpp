@@ -1,12 +1,11 @@
 // io module: mesh import/export through assimp, atomic writes, state files, scene files.
 
 #include <gtest/gtest.h>
-
-#include <csignal>
 #include <unistd.h>
 
 #include <chrono>
 #include <cmath>
+#include <csignal>
 #include <cstring>
 #include <filesystem>
 #include <fstream>

@@ -136,7 +136,8 @@ TEST(Mesh, IsolatedVerticesAndComponents) {
 TEST(Mesh, OneRingAndTwoRing) {
   const Mesh m = makeGrid(5);
   const Index centre = 2 + 5 * 2;
-  auto ring = std::vector<Index>(m.vertexNeighbors(centre).begin(), m.vertexNeighbors(centre).end());
+  auto ring =
+      std::vector<Index>(m.vertexNeighbors(centre).begin(), m.vertexNeighbors(centre).end());
   std::sort(ring.begin(), ring.end());
   EXPECT_EQ(ring, (std::vector<Index>{7, 11, 13, 17}));
   // Two edges away on a quad grid: a diamond of 12 vertices.

@@ -262,7 +262,8 @@ TEST(Forces, AngleAtIsAtan2AtAnyScaleAndTheRestShapeHasNoEnergy) {
   EXPECT_EQ(angleAt(Vec3::Zero(), Vec3::Zero(), Vec3(1, 0, 0)), 0.0);
   // The rest angles and lengths a model is made with are the potential energy's at the rest
   // shape, term by term: the rest shape stores nothing.
-  for (Mesh mesh : {makeTorus(30, 20), makeGrid(12), makeFins(), makeLattice(4), makeDodecahedron()}) {
+  for (Mesh mesh :
+       {makeTorus(30, 20), makeGrid(12), makeFins(), makeLattice(4), makeDodecahedron()}) {
     const Model model = withAngles(std::move(mesh), 0.7);
     const PotentialEnergy e = potentialEnergy(model, model.mesh.positions());
     EXPECT_EQ(e.radial, 0.0);
@@ -746,9 +747,8 @@ TEST_P(DriftFilterLongRun, EachFitOfPsiKeepsTheEnergyWithinOnePercentAtTheEndOfI
   // (degree 2) and 4 (degree 3).
   const Model model = bracedModel(GetParam());
   const double tMax = criticalPeriod(SystemMatrices(model));
-  for (const auto& [ratio, products] :
-       {std::pair{0.27, 1}, std::pair{0.28, 2}, std::pair{0.515, 2}, std::pair{0.57, 3},
-        std::pair{0.8, 3}}) {
+  for (const auto& [ratio, products] : {std::pair{0.27, 1}, std::pair{0.28, 2}, std::pair{0.515, 2},
+                                        std::pair{0.57, 3}, std::pair{0.8, 3}}) {
     const double dt = ratio * tMax;
     StepperOptions options;
     options.threads = 1;
@@ -905,9 +905,8 @@ TEST(ForceKernel, ItsAnglesAreAtan2sToAFewUnitsInTheLastPlace) {
     const Vec3 centre(3.0 * static_cast<double>(k), 0.0, 0.0);
     x.row(k) = centre;
     x.row(n + 2 * k) = centre + Vec3(1.0, 0.0, 0.0);
-    x.row(n + 2 * k + 1) =
-        centre + 1.3 * Vec3(std::cos(theta), std::sin(theta) * std::cos(phi),
-                            std::sin(theta) * std::sin(phi));
+    x.row(n + 2 * k + 1) = centre + 1.3 * Vec3(std::cos(theta), std::sin(theta) * std::cos(phi),
+                                               std::sin(theta) * std::sin(phi));
     edges.push_back({k, n + 2 * k});
     edges.push_back({k, n + 2 * k + 1});
   }

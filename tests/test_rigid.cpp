@@ -28,7 +28,9 @@ Mat3 referenceRotation(const Vec3& moments, const Vec3& omegaBody, double time, 
   Vec3 w = omegaBody;
   Eigen::Quaterniond q = Eigen::Quaterniond::Identity();
   const double h = time / steps;
-  auto rate = [&](const Vec3& x) { return Vec3(moments.cwiseProduct(x).cross(x).cwiseQuotient(moments)); };
+  auto rate = [&](const Vec3& x) {
+    return Vec3(moments.cwiseProduct(x).cross(x).cwiseQuotient(moments));
+  };
   auto qrate = [&](const Eigen::Quaterniond& quat, const Vec3& x) {
     const Eigen::Quaterniond p(0.0, x.x(), x.y(), x.z());
     Eigen::Quaterniond out = quat * p;

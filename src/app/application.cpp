@@ -15,9 +15,9 @@
 
 #define GLFW_INCLUDE_NONE
 #include <GLFW/glfw3.h>
-#include <imgui.h>
 #include <backends/imgui_impl_glfw.h>
 #include <backends/imgui_impl_opengl3.h>
+#include <imgui.h>
 
 #include "window.h"
 #include "zsculpt/core/errors.h"
@@ -51,7 +51,8 @@ void glfwError(int code, const char* description) {
 template <class F>
 void loadGl(F& f, const char* name) {
   f = reinterpret_cast<F>(glfwGetProcAddress(name));
-  if (f == nullptr) throw IOError(std::string("display: the OpenGL function ") + name + " is missing");
+  if (f == nullptr)
+    throw IOError(std::string("display: the OpenGL function ") + name + " is missing");
 }
 
 constexpr std::pair<const char*, Tool> kToolNames[] = {
@@ -63,8 +64,8 @@ constexpr std::pair<const char*, Tool> kToolNames[] = {
 Tool toolFromName(const std::string& name) {
   for (const auto& [toolName, tool] : kToolNames)
     if (name == toolName) return tool;
-  throw InvalidInputError("tool \"" + name +
-                          "\": unknown (valid: orbit, drag, paint, pin, normal_pin, force, torque)");
+  throw InvalidInputError(
+      "tool \"" + name + "\": unknown (valid: orbit, drag, paint, pin, normal_pin, force, torque)");
 }
 
 const char* nameOfTool(Tool tool) {
@@ -103,7 +104,8 @@ Window::Window(SessionSetup setup, const WindowOptions& options) : options_(opti
   glfwWindowHint(GLFW_CONTEXT_VERSION_MINOR, 3);
   glfwWindowHint(GLFW_OPENGL_PROFILE, GLFW_OPENGL_CORE_PROFILE);
   glfwWindowHint(GLFW_OPENGL_FORWARD_COMPAT, GLFW_TRUE);
-  window_ = glfwCreateWindow(options_.width, options_.height, options_.title.c_str(), nullptr, nullptr);
+  window_ =
+      glfwCreateWindow(options_.width, options_.height, options_.title.c_str(), nullptr, nullptr);
   if (window_ == nullptr) {
     const std::string error = glfwLastError();
     glfwTerminate();
@@ -119,8 +121,9 @@ Window::Window(SessionSetup setup, const WindowOptions& options) : options_(opti
     loadGl(gl_.ReadBuffer, "glReadBuffer");
     loadGl(gl_.PixelStorei, "glPixelStorei");
     loadGl(gl_.ReadPixels, "glReadPixels");
-    renderer_ = std::make_unique<render::Renderer>(
-        [](const char* name) { return reinterpret_cast<render::GlProc>(glfwGetProcAddress(name)); });
+    renderer_ = std::make_unique<render::Renderer>([](const char* name) {
+      return reinterpret_cast<render::GlProc>(glfwGetProcAddress(name));
+    });
   } catch (...) {
     glfwDestroyWindow(window_);
     glfwTerminate();
@@ -198,7 +201,8 @@ void Window::startSession(SessionSetup setup, bool record) {
         "the model settle");
   gravityOn_ = first->gravity.norm() > 0.0;
   if (gravityOn_)
-    for (int c = 0; c < 3; ++c) gravity_[static_cast<size_t>(c)] = static_cast<float>(first->gravity[c]);
+    for (int c = 0; c < 3; ++c)
+      gravity_[static_cast<size_t>(c)] = static_cast<float>(first->gravity[c]);
   capOn_ = std::isfinite(first->stiffnessCap);
   if (capOn_) cap_ = static_cast<float>(first->stiffnessCap);
   pushed_ = 0;
@@ -322,7 +326,8 @@ int Window::run() {
   if (scripted_ && !options_.screenshotDir.empty()) {
     const fs::path log = fs::path(options_.screenshotDir) / "script_log.json";
     io::ensureWritableDirectory(options_.screenshotDir);
-    io::writeFileAtomically(log.string(), [&](std::ostream& out) { out << scriptLog_.dump(2) << "\n"; });
+    io::writeFileAtomically(log.string(),
+                            [&](std::ostream& out) { out << scriptLog_.dump(2) << "\n"; });
   }
   // The shell's convention for a process ended by a signal, after the outputs are written.
   return closingSignal != 0 ? 128 + closingSignal : 0;
@@ -432,7 +437,8 @@ void Window::captureWindow() {
 void Window::takeScreenshot(const std::string& name, bool window) {
   // The model alone, rendered offscreen at the view's size (what `zsculpt render` would
   // draw), and optionally the whole window with its panels.
-  const fs::path dir = options_.screenshotDir.empty() ? fs::path(".") : fs::path(options_.screenshotDir);
+  const fs::path dir =
+      options_.screenshotDir.empty() ? fs::path(".") : fs::path(options_.screenshotDir);
   try {
     io::ensureWritableDirectory(dir.string());
     const std::string path = (dir / (name + ".png")).string();
@@ -457,7 +463,8 @@ void Window::requestQuit() {
   confirmQuit_ = true;
 }
 
-// ---- input ---------------------------------------------------------------------------------------
+// ---- input
+// ---------------------------------------------------------------------------------------
 
 void Window::readImGuiInput() {
   const ImGuiIO& io = ImGui::GetIO();
@@ -509,8 +516,10 @@ void Window::pointer(const PointerEvent& e) {
       if (adjust_ != Adjust::None) {
         // Left click confirms the F / Shift+F adjustment, right click cancels it (Blender).
         if (e.button == 1) {
-          if (adjust_ == Adjust::Radius) brush_.radius = adjustBefore_;
-          else brush_.strength = adjustBefore_;
+          if (adjust_ == Adjust::Radius)
+            brush_.radius = adjustBefore_;
+          else
+            brush_.strength = adjustBefore_;
         }
         adjust_ = Adjust::None;
         break;
@@ -656,7 +665,8 @@ void Window::frameModel() {
   camera_ = f.camera;
 }
 
-// ---- tools ---------------------------------------------------------------------------------------
+// ---- tools
+// ---------------------------------------------------------------------------------------
 
 std::optional<Pick> Window::pick(double x, double y) {
   const Snapshot& s = solver_->current();
@@ -667,7 +677,8 @@ std::optional<Pick> Window::pick(double x, double y) {
     const SubdivisionStencil* stencil = builder_->stencil();
     std::optional<SurfaceHit> hit;
     if (stencil != nullptr && view_.surface) {
-      if (refined_.rows() != stencil->numRefinedVertices()) refined_.resize(stencil->numRefinedVertices(), 3);
+      if (refined_.rows() != stencil->numRefinedVertices())
+        refined_.resize(stencil->numRefinedVertices(), 3);
       stencil->apply(s.position, refined_);
       hit = pickSurface(stencil->refinedFaces(), refined_, ray);
       if (hit) p.vertex = nearestVertex(s.position, hit->point);
@@ -702,21 +713,38 @@ editing::Brush Window::effectiveBrush(bool ctrl) const {
   // Ctrl inverts the brush (Blender): add subtracts, multiply divides, set paints the
   // scene's uniform value back ("erase"), smooth stays smooth.
   switch (b.mode) {
-    case editing::BrushMode::Add: b.value = -b.value; break;
-    case editing::BrushMode::Multiply: b.value = b.value > 0.0 ? 1.0 / b.value : b.value; break;
+    case editing::BrushMode::Add:
+      b.value = -b.value;
+      break;
+    case editing::BrushMode::Multiply:
+      b.value = b.value > 0.0 ? 1.0 / b.value : b.value;
+      break;
     case editing::BrushMode::Set: {
       const UniformProperties& u = uniform_;
       switch (b.property) {
-        case Property::Mass: b.value = u.mass; break;
-        case Property::Damping: b.value = u.damping; break;
-        case Property::Stiffness: b.value = u.stiffness; break;
-        case Property::AngularStiffness: b.value = u.angularStiffness; break;
-        case Property::Rigidity: b.value = u.rigidity; break;
-        default: b.mode = editing::BrushMode::Smooth; break;
+        case Property::Mass:
+          b.value = u.mass;
+          break;
+        case Property::Damping:
+          b.value = u.damping;
+          break;
+        case Property::Stiffness:
+          b.value = u.stiffness;
+          break;
+        case Property::AngularStiffness:
+          b.value = u.angularStiffness;
+          break;
+        case Property::Rigidity:
+          b.value = u.rigidity;
+          break;
+        default:
+          b.mode = editing::BrushMode::Smooth;
+          break;
       }
       break;
     }
-    case editing::BrushMode::Smooth: break;
+    case editing::BrushMode::Smooth:
+      break;
   }
   return b;
 }
@@ -741,13 +769,17 @@ void Window::toolDown(const PointerEvent& e) {
   toolAnchor_ = at;
   loadEnd_ = at;
   switch (tool_) {
-    case Tool::Drag: push(DragStart{p.vertex, at}); break;
-    case Tool::Paint: dabAt(p, e.ctrl); break;
+    case Tool::Drag:
+      push(DragStart{p.vertex, at});
+      break;
+    case Tool::Paint:
+      dabAt(p, e.ctrl);
+      break;
     case Tool::Pin:
       if (pinByBrush_) {
-        const editing::BrushCentre centre = p.controlFace >= 0
-                                                ? editing::BrushCentre::onFace(p.controlFace, p.point)
-                                                : editing::BrushCentre::atPoint(p.point);
+        const editing::BrushCentre centre =
+            p.controlFace >= 0 ? editing::BrushCentre::onFace(p.controlFace, p.point)
+                               : editing::BrushCentre::atPoint(p.point);
         push(PinBrush{centre, brush_.radius, !e.ctrl});
         lastDab_ = p.point;
       } else {
@@ -759,7 +791,8 @@ void Window::toolDown(const PointerEvent& e) {
       break;
     case Tool::Force:
     case Tool::Torque:
-    case Tool::Orbit: break;
+    case Tool::Orbit:
+      break;
   }
 }
 
@@ -780,9 +813,10 @@ void Window::toolMove(const PointerEvent& e) {
       if (tool_ == Tool::Paint) {
         dabAt(*hover_, ctrlStroke_);
       } else if (pinByBrush_) {
-        const editing::BrushCentre centre = hover_->controlFace >= 0
-                                                ? editing::BrushCentre::onFace(hover_->controlFace, hover_->point)
-                                                : editing::BrushCentre::atPoint(hover_->point);
+        const editing::BrushCentre centre =
+            hover_->controlFace >= 0
+                ? editing::BrushCentre::onFace(hover_->controlFace, hover_->point)
+                : editing::BrushCentre::atPoint(hover_->point);
         push(PinBrush{centre, brush_.radius, !ctrlStroke_});
         lastDab_ = hover_->point;
       }
@@ -792,13 +826,16 @@ void Window::toolMove(const PointerEvent& e) {
     case Tool::Torque:
       loadEnd_ = onViewPlane(camera_, ray, toolAnchor_);
       break;
-    default: break;
+    default:
+      break;
   }
 }
 
 void Window::toolUp(const PointerEvent&) {
   switch (tool_) {
-    case Tool::Drag: push(DragEnd{}); break;
+    case Tool::Drag:
+      push(DragEnd{});
+      break;
     case Tool::Force:
     case Tool::Torque: {
       const Vec3 drag = loadEnd_ - toolAnchor_;
@@ -809,16 +846,19 @@ void Window::toolUp(const PointerEvent&) {
         // Trackball-like: dragging right spins the near side of the surface to the right,
         // about the screen's up axis through the vertex.
         const Vec3 toViewer = (camera_.eye() - camera_.target).normalized();
-        push(AddLoad{LoadKind::Torque, toolVertex_, torqueScale_ * toViewer.cross(drag), loadDuration_});
+        push(AddLoad{LoadKind::Torque, toolVertex_, torqueScale_ * toViewer.cross(drag),
+                     loadDuration_});
       }
       break;
     }
-    default: break;
+    default:
+      break;
   }
   toolVertex_ = -1;
 }
 
-// ---- scripts -------------------------------------------------------------------------------------
+// ---- scripts
+// -------------------------------------------------------------------------------------
 
 void Window::loadScript(const std::string& path) {
   const Recording script = readRecording(path);  // throws on malformed lines
@@ -831,8 +871,8 @@ void Window::loadScript(const std::string& path) {
                                   "camera",      "mouse_down", "mouse_move", "mouse_up",
                                   "screenshot",  "probe",      "save_scene", "save_mesh",
                                   "quit",        "frame",      "key",        "scroll"};
-    if (std::find_if(std::begin(known), std::end(known), [&](const char* k) { return action == k; }) ==
-        std::end(known))
+    if (std::find_if(std::begin(known), std::end(known),
+                     [&](const char* k) { return action == k; }) == std::end(known))
       throw InvalidInputError(where + ": ui: unknown action \"" + action + "\"");
     if (action == "command") commandFromJson(j.at("command"), where + ": command");
     if (action == "tool") toolFromName(j.value("tool", std::string()));
@@ -851,19 +891,22 @@ void Window::loadScript(const std::string& path) {
   scripted_ = true;
 }
 
-std::optional<PointerEvent> Window::scriptPointer(const nlohmann::json& j, PointerEvent::Kind kind) {
+std::optional<PointerEvent> Window::scriptPointer(const nlohmann::json& j,
+                                                  PointerEvent::Kind kind) {
   PointerEvent e;
   e.kind = kind;
   double x = scriptX_, y = scriptY_;
   if (j.contains("at_vertex")) {
     const Index v = j.at("at_vertex").get<Index>();
     const Snapshot& s = solver_->current();
-    if (v < 0 || v >= s.position.rows()) throw InvalidInputError("at_vertex " + std::to_string(v) + ": no such vertex");
+    if (v < 0 || v >= s.position.rows())
+      throw InvalidInputError("at_vertex " + std::to_string(v) + ": no such vertex");
     const auto px = projectToPixel(camera_, viewWidth_, viewHeight_, s.position.row(v).transpose());
     if (!px) throw InvalidInputError("at_vertex " + std::to_string(v) + ": behind the camera");
     x = px->x();
     y = px->y();
-    scriptLog_.push_back({{"frame", scriptFrame_}, {"vertex", v}, {"pixel", {x, y}}, {"event", j.at("ui")}});
+    scriptLog_.push_back(
+        {{"frame", scriptFrame_}, {"vertex", v}, {"pixel", {x, y}}, {"event", j.at("ui")}});
   } else if (j.contains("at")) {
     x = j.at("at")[0].get<double>() * pixelScale_;
     y = j.at("at")[1].get<double>() * pixelScale_;
@@ -919,18 +962,22 @@ void Window::stepScript() {
         tool_ = toolFromName(j.at("tool").get<std::string>());
         if (j.contains("pin_by_brush")) pinByBrush_ = j.at("pin_by_brush").get<bool>();
       } else if (action == "brush") {
-        if (j.contains("property")) brush_.property = propertyFromName(j.at("property").get<std::string>());
-        if (j.contains("mode")) brush_.mode = editing::brushModeFromName(j.at("mode").get<std::string>());
+        if (j.contains("property"))
+          brush_.property = propertyFromName(j.at("property").get<std::string>());
+        if (j.contains("mode"))
+          brush_.mode = editing::brushModeFromName(j.at("mode").get<std::string>());
         if (j.contains("value")) brush_.value = j.at("value").get<double>();
         if (j.contains("strength")) brush_.strength = j.at("strength").get<double>();
         if (j.contains("radius")) brush_.radius = j.at("radius").get<double>();
-        if (j.contains("falloff")) brush_.falloff = editing::falloffFromName(j.at("falloff").get<std::string>());
+        if (j.contains("falloff"))
+          brush_.falloff = editing::falloffFromName(j.at("falloff").get<std::string>());
       } else if (action == "display") {
         if (j.contains("property")) {
           view_.colourByProperty = true;
           solver_->setDisplayProperty(propertyFromName(j.at("property").get<std::string>()));
         }
-        if (j.contains("colour_map")) view_.colorMap = render::colorMapFromName(j.at("colour_map").get<std::string>());
+        if (j.contains("colour_map"))
+          view_.colorMap = render::colorMapFromName(j.at("colour_map").get<std::string>());
         if (j.contains("levels")) {
           view_.levels = affordableLevels(*mesh_, j.at("levels").get<int>());
           builder_->setLevels(view_.levels);
@@ -945,12 +992,13 @@ void Window::stepScript() {
       } else if (action == "camera") {
         if (j.value("frame", false)) frameModel();
         if (j.contains("yaw")) camera_.yawDegrees = j.at("yaw").get<double>();
-        if (j.contains("pitch")) camera_.pitchDegrees = std::clamp(j.at("pitch").get<double>(), -89.0, 89.0);
+        if (j.contains("pitch"))
+          camera_.pitchDegrees = std::clamp(j.at("pitch").get<double>(), -89.0, 89.0);
         if (j.contains("zoom")) camera_.zoom(j.at("zoom").get<double>());
       } else if (action == "frame") {
         frameModel();
       } else if (action == "mouse_down" || action == "mouse_move" || action == "mouse_up") {
-        const PointerEvent::Kind kind = action == "mouse_down" ? PointerEvent::Kind::Down
+        const PointerEvent::Kind kind = action == "mouse_down"   ? PointerEvent::Kind::Down
                                         : action == "mouse_move" ? PointerEvent::Kind::Move
                                                                  : PointerEvent::Kind::Up;
         if (auto e = scriptPointer(j, kind)) {
@@ -986,13 +1034,15 @@ void Window::stepScript() {
         const std::string what = j.value("what", std::string("both"));
         if (what == "window") {
           // Only the window with its panels, as NAME.png (for documentation).
-          const fs::path dir = options_.screenshotDir.empty() ? fs::path(".") : fs::path(options_.screenshotDir);
+          const fs::path dir =
+              options_.screenshotDir.empty() ? fs::path(".") : fs::path(options_.screenshotDir);
           io::ensureWritableDirectory(dir.string());
           pendingWindowCapture_ = (dir / (name + ".png")).string();
         } else if (what == "model" || what == "both") {
           takeScreenshot(name, what == "both");
         } else {
-          throw InvalidInputError("screenshot: what \"" + what + "\": unknown (valid: both, model, window)");
+          throw InvalidInputError("screenshot: what \"" + what +
+                                  "\": unknown (valid: both, model, window)");
         }
         if (what != "model") {
           // The plots as the captured frame draws them (the layout of the frame before).
@@ -1009,7 +1059,8 @@ void Window::stepScript() {
         const Index v = j.at("vertex").get<Index>();
         if (v < 0 || v >= s.position.rows())
           throw InvalidInputError("probe " + std::to_string(v) + ": no such vertex");
-        const auto px = projectToPixel(camera_, viewWidth_, viewHeight_, s.position.row(v).transpose());
+        const auto px =
+            projectToPixel(camera_, viewWidth_, viewHeight_, s.position.row(v).transpose());
         if (px)
           scriptLog_.push_back(
               {{"frame", scriptFrame_},

@@ -15,16 +15,23 @@ namespace {
 
 using nlohmann::json;
 
-json vec(const Vec3& v) { return json::array({v.x(), v.y(), v.z()}); }
+json vec(const Vec3& v) {
+  return json::array({v.x(), v.y(), v.z()});
+}
 
 // Infinity is not JSON: written as null.
-json number(double value) { return std::isfinite(value) ? json(value) : json(nullptr); }
+json number(double value) {
+  return std::isfinite(value) ? json(value) : json(nullptr);
+}
 
 json centreToJson(const editing::BrushCentre& c) {
   switch (c.kind) {
-    case editing::BrushCentre::Kind::Vertex: return {{"vertex", c.vertex}};
-    case editing::BrushCentre::Kind::FacePoint: return {{"face", c.face}, {"point", vec(c.point)}};
-    case editing::BrushCentre::Kind::Point: return {{"point", vec(c.point)}};
+    case editing::BrushCentre::Kind::Vertex:
+      return {{"vertex", c.vertex}};
+    case editing::BrushCentre::Kind::FacePoint:
+      return {{"face", c.face}, {"point", vec(c.point)}};
+    case editing::BrushCentre::Kind::Point:
+      return {{"point", vec(c.point)}};
   }
   return {};
 }
@@ -153,19 +160,16 @@ std::string_view commandName(const Command& command) {
           [](const SetGravity&) -> std::string_view { return "set_gravity"; },
           [](const SetStiffnessCap&) -> std::string_view { return "set_stiffness_cap"; },
           [](const Edit& e) -> std::string_view {
-            return std::visit(Overloaded{
-                                  [](const editing::Dab&) -> std::string_view { return "dab"; },
-                                  [](const editing::GlobalEdit&) -> std::string_view {
-                                    return "global_edit";
-                                  },
-                                  [](const editing::Relax&) -> std::string_view { return "relax"; },
-                                  [](const editing::ScaleRest&) -> std::string_view {
-                                    return "scale_rest";
-                                  },
-                                  [](const editing::Undo&) -> std::string_view { return "undo"; },
-                                  [](const editing::Redo&) -> std::string_view { return "redo"; },
-                              },
-                              e.command);
+            return std::visit(
+                Overloaded{
+                    [](const editing::Dab&) -> std::string_view { return "dab"; },
+                    [](const editing::GlobalEdit&) -> std::string_view { return "global_edit"; },
+                    [](const editing::Relax&) -> std::string_view { return "relax"; },
+                    [](const editing::ScaleRest&) -> std::string_view { return "scale_rest"; },
+                    [](const editing::Undo&) -> std::string_view { return "undo"; },
+                    [](const editing::Redo&) -> std::string_view { return "redo"; },
+                },
+                e.command);
           },
           [](const AddLoad& l) -> std::string_view {
             return l.kind == LoadKind::Force ? "force" : "torque";
@@ -189,25 +193,26 @@ std::string describe(const Command& command) {
   if (const auto* e = std::get_if<Edit>(&command)) return editing::describe(e->command);
   std::ostringstream out;
   out << commandName(command);
-  std::visit(Overloaded{
-                 [&](const SetTimeStep& s) {
-                   out << ' ' << schemeName(s.scheme) << ", T = " << s.period << " s";
-                 },
-                 [&](const SetGravity& g) { out << ' ' << g.gravity.transpose(); },
-                 [&](const SetStiffnessCap& c) { out << ' ' << c.cap; },
-                 [&](const AddLoad& l) {
-                   out << " (" << l.value.transpose() << ") at vertex " << l.vertex << " for "
-                       << l.duration << " s";
-                 },
-                 [&](const Pin& p) { out << " vertex " << p.vertex; },
-                 [&](const Unpin& p) { out << " vertex " << p.vertex; },
-                 [&](const PinBrush& p) { out << (p.pin ? " pin" : " unpin") << ", radius " << p.radius; },
-                 [&](const PinNormal& p) { out << " vertex " << p.vertex; },
-                 [&](const UnpinNormal& p) { out << " vertex " << p.vertex; },
-                 [&](const DragStart& d) { out << " vertex " << d.vertex; },
-                 [](const auto&) {},
-             },
-             command);
+  std::visit(
+      Overloaded{
+          [&](const SetTimeStep& s) {
+            out << ' ' << schemeName(s.scheme) << ", T = " << s.period << " s";
+          },
+          [&](const SetGravity& g) { out << ' ' << g.gravity.transpose(); },
+          [&](const SetStiffnessCap& c) { out << ' ' << c.cap; },
+          [&](const AddLoad& l) {
+            out << " (" << l.value.transpose() << ") at vertex " << l.vertex << " for "
+                << l.duration << " s";
+          },
+          [&](const Pin& p) { out << " vertex " << p.vertex; },
+          [&](const Unpin& p) { out << " vertex " << p.vertex; },
+          [&](const PinBrush& p) { out << (p.pin ? " pin" : " unpin") << ", radius " << p.radius; },
+          [&](const PinNormal& p) { out << " vertex " << p.vertex; },
+          [&](const UnpinNormal& p) { out << " vertex " << p.vertex; },
+          [&](const DragStart& d) { out << " vertex " << d.vertex; },
+          [](const auto&) {},
+      },
+      command);
   return out.str();
 }
 
@@ -222,16 +227,17 @@ json commandToJson(const Command& command) {
                  [&](const SetGravity& g) { j["gravity"] = vec(g.gravity); },
                  [&](const SetStiffnessCap& c) { j["cap"] = number(c.cap); },
                  [&](const Edit& e) {
-                   std::visit(Overloaded{
-                                  [&](const editing::Dab& d) {
-                                    brushToJson(j, d.brush, true);
-                                    j["centre"] = centreToJson(d.centre);
-                                  },
-                                  [&](const editing::GlobalEdit& g) { brushToJson(j, g.brush, false); },
-                                  [&](const editing::ScaleRest& s) { j["factor"] = s.factor; },
-                                  [](const auto&) {},
-                              },
-                              e.command);
+                   std::visit(
+                       Overloaded{
+                           [&](const editing::Dab& d) {
+                             brushToJson(j, d.brush, true);
+                             j["centre"] = centreToJson(d.centre);
+                           },
+                           [&](const editing::GlobalEdit& g) { brushToJson(j, g.brush, false); },
+                           [&](const editing::ScaleRest& s) { j["factor"] = s.factor; },
+                           [](const auto&) {},
+                       },
+                       e.command);
                  },
                  [&](const AddLoad& l) {
                    j["vertex"] = l.vertex;

@@ -20,7 +20,9 @@ std::string defaultScenePath() {
   const fs::path root = fs::path(__FILE__).parent_path().parent_path().parent_path();
   const fs::path p = root / relative;
   if (fs::is_regular_file(p, ec)) return p.string();
-  throw IOError(p.string() + ": the default scene is not found; set ZSCULPT_DATA_DIR to the folder holding assets/");
+  throw IOError(
+      p.string() +
+      ": the default scene is not found; set ZSCULPT_DATA_DIR to the folder holding assets/");
 }
 
 }  // namespace zsculpt::app

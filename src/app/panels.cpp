@@ -20,8 +20,8 @@ namespace zsculpt::app {
 namespace {
 
 const char* kSchemes[] = {"default", "paper", "exact", "symplectic-euler", "implicit-euler"};
-const char* kProperties[] = {"mass", "damping", "stiffness", "angular_stiffness", "rigidity",
-                             "rest_length", "rest_angle"};
+const char* kProperties[] = {"mass",     "damping",     "stiffness", "angular_stiffness",
+                             "rigidity", "rest_length", "rest_angle"};
 const char* kModes[] = {"set", "add", "multiply", "smooth"};
 const char* kFalloffs[] = {"smooth", "sphere", "linear", "sharp", "constant"};
 const char* kMaps[] = {"viridis", "diverging", "weight"};
@@ -60,7 +60,10 @@ std::array<float, 4> plot(const char* label, const std::array<float, PlotSeries:
     lo -= 0.5f * (std::abs(lo) + 1e-6f);
   }
   char overlay[96];
-  const float last = count > 0 ? data[static_cast<size_t>((series.next + PlotSeries::kSize - 1) % PlotSeries::kSize)] : 0.0f;
+  const float last =
+      count > 0
+          ? data[static_cast<size_t>((series.next + PlotSeries::kSize - 1) % PlotSeries::kSize)]
+          : 0.0f;
   std::snprintf(overlay, sizeof overlay, "%s %.4g", label, static_cast<double>(last));
   // A width given, not -1: ImGui 1.86 (Debian 12's) takes a negative plot width literally, and
   // drew every plot as an empty sliver.
@@ -93,9 +96,10 @@ void Window::panels() {
   if (s.fallingBehind) {
     ImGui::SameLine();
     ImGui::TextColored(ImVec4(0.8f, 0.1f, 0.1f, 1), "  falling behind (x%.2f)", s.simOverWall);
-    help("The solver needs longer for a step than the step simulates, so simulated time runs "
-         "slower than wall time (the paper's solver fell behind beyond about 1200 vertices). "
-         "Raise the time step, lower the stiffness, or use a coarser model.");
+    help(
+        "The solver needs longer for a step than the step simulates, so simulated time runs "
+        "slower than wall time (the paper's solver fell behind beyond about 1200 vertices). "
+        "Raise the time step, lower the stiffness, or use a coarser model.");
   }
   if (s.unsaved) {
     ImGui::SameLine();
@@ -122,7 +126,8 @@ void Window::panels() {
 }
 
 void Window::simulationPanel(const Snapshot& s) {
-  if (ImGui::Button(s.running ? "Pause" : "Play")) push(s.running ? Command(Pause{}) : Command(Play{}));
+  if (ImGui::Button(s.running ? "Pause" : "Play"))
+    push(s.running ? Command(Pause{}) : Command(Play{}));
   help("Space");
   ImGui::SameLine();
   if (ImGui::Button("Step")) push(StepOnce{});
@@ -151,8 +156,9 @@ void Window::simulationPanel(const Snapshot& s) {
   }
   ImGui::Combo("scheme", &schemeIndex_, kSchemes, IM_ARRAYSIZE(kSchemes));
   ImGui::SliderFloat("T / T_max", &dtRatio_, 0.05f, 1.5f, "%.3f");
-  help("The time step as a fraction of equation 5's critical period T_max. Above the "
-       "scheme's stable limit the simulation diverges (it is then rolled back and paused).");
+  help(
+      "The time step as a fraction of equation 5's critical period T_max. Above the "
+      "scheme's stable limit the simulation diverges (it is then rolled back and paused).");
   const double period = dtRatio_ * s.tMax;
   const bool changed = static_cast<int>(s.scheme) != schemeIndex_ ||
                        (std::isfinite(period) && std::abs(period - s.period) > 1e-12 * s.period);
@@ -197,8 +203,9 @@ void Window::simulationPanel(const Snapshot& s) {
     push(SetGravity{g});
   }
   bool capChanged = ImGui::Checkbox("stiffness cap", &capOn_);
-  help("kappa_0 of section 4.3: vertices stiffer than this become partly rigid, so the "
-       "critical period depends on kappa_0 instead of the stiffest vertex.");
+  help(
+      "kappa_0 of section 4.3: vertices stiffer than this become partly rigid, so the "
+      "critical period depends on kappa_0 instead of the stiffest vertex.");
   ImGui::SameLine();
   ImGui::SetNextItemWidth(-1.0f);
   ImGui::InputFloat("##cap", &cap_, 0.0f, 0.0f, "%.3g N/m");
@@ -207,7 +214,8 @@ void Window::simulationPanel(const Snapshot& s) {
     if (capOn_ && !(cap_ > 0.0f)) {
       message("stiffness cap: must be positive");
     } else {
-      push(SetStiffnessCap{capOn_ ? static_cast<double>(cap_) : std::numeric_limits<double>::infinity()});
+      push(SetStiffnessCap{capOn_ ? static_cast<double>(cap_)
+                                  : std::numeric_limits<double>::infinity()});
     }
   }
 }
@@ -215,28 +223,54 @@ void Window::simulationPanel(const Snapshot& s) {
 void Window::toolPanel(const Snapshot& s) {
   (void)s;
   int tool = static_cast<int>(tool_);
-  const char* names[] = {"orbit (Q)", "drag (D)", "paint (B)", "pin (P)", "normal pin (N)",
-                         "force (V)", "torque (T)"};
+  const char* names[] = {"orbit (Q)",      "drag (D)",  "paint (B)", "pin (P)",
+                         "normal pin (N)", "force (V)", "torque (T)"};
   for (int i = 0; i < 7; ++i) {
     if (i % 3 != 0) ImGui::SameLine();
     ImGui::RadioButton(names[i], &tool, i);
   }
   tool_ = static_cast<Tool>(tool);
   switch (tool_) {
-    case Tool::Orbit: ImGui::TextWrapped("Left-drag orbits, right-drag or Shift+left pans, wheel zooms, Home frames."); break;
-    case Tool::Drag: ImGui::TextWrapped("Press on the model and drag: the vertex follows the cursor (a moving position constraint)."); break;
-    case Tool::Paint: ImGui::TextWrapped("Paint the property below. F: radius, Shift+F: strength, Ctrl: invert."); break;
-    case Tool::Pin: ImGui::TextWrapped("Click pins the vertex, Ctrl+click unpins; with 'by brush' a stroke pins (Ctrl: unpins) everything under the brush."); break;
-    case Tool::NormalPin: ImGui::TextWrapped("Click holds the normal at the vertex as it is; Ctrl+click releases it."); break;
-    case Tool::Force: ImGui::TextWrapped("Press on a vertex and drag: the arrow is the force, applied on release for the duration below."); break;
-    case Tool::Torque: ImGui::TextWrapped("Press on a vertex and drag: a torque that spins the surface like a trackball, applied on release."); break;
+    case Tool::Orbit:
+      ImGui::TextWrapped(
+          "Left-drag orbits, right-drag or Shift+left pans, wheel zooms, Home frames.");
+      break;
+    case Tool::Drag:
+      ImGui::TextWrapped(
+          "Press on the model and drag: the vertex follows the cursor (a moving position "
+          "constraint).");
+      break;
+    case Tool::Paint:
+      ImGui::TextWrapped("Paint the property below. F: radius, Shift+F: strength, Ctrl: invert.");
+      break;
+    case Tool::Pin:
+      ImGui::TextWrapped(
+          "Click pins the vertex, Ctrl+click unpins; with 'by brush' a stroke pins (Ctrl: unpins) "
+          "everything under the brush.");
+      break;
+    case Tool::NormalPin:
+      ImGui::TextWrapped("Click holds the normal at the vertex as it is; Ctrl+click releases it.");
+      break;
+    case Tool::Force:
+      ImGui::TextWrapped(
+          "Press on a vertex and drag: the arrow is the force, applied on release for the duration "
+          "below.");
+      break;
+    case Tool::Torque:
+      ImGui::TextWrapped(
+          "Press on a vertex and drag: a torque that spins the surface like a trackball, applied "
+          "on release.");
+      break;
   }
   if (tool_ == Tool::Pin) ImGui::Checkbox("pin by brush", &pinByBrush_);
   if (tool_ == Tool::Force || tool_ == Tool::Torque) {
     float scale = static_cast<float>(tool_ == Tool::Force ? forceScale_ : torqueScale_);
-    if (ImGui::InputFloat(tool_ == Tool::Force ? "N per unit" : "N m per unit", &scale, 0, 0, "%.3g") && scale > 0)
+    if (ImGui::InputFloat(tool_ == Tool::Force ? "N per unit" : "N m per unit", &scale, 0, 0,
+                          "%.3g") &&
+        scale > 0)
       (tool_ == Tool::Force ? forceScale_ : torqueScale_) = scale;
-    ImGui::SliderFloat("duration", &loadDuration_, 0.05f, 10.0f, "%.2f s", ImGuiSliderFlags_Logarithmic);
+    ImGui::SliderFloat("duration", &loadDuration_, 0.05f, 10.0f, "%.2f s",
+                       ImGuiSliderFlags_Logarithmic);
     if (ImGui::Button("Clear loads")) push(ClearLoads{});
   }
   if (tool_ == Tool::Pin || tool_ == Tool::NormalPin) {
@@ -249,14 +283,18 @@ void Window::toolPanel(const Snapshot& s) {
   if (ImGui::Combo("property", &property, kProperties, IM_ARRAYSIZE(kProperties)))
     brush_.property = static_cast<Property>(property);
   int mode = static_cast<int>(brush_.mode);
-  if (ImGui::Combo("mode", &mode, kModes, IM_ARRAYSIZE(kModes))) brush_.mode = static_cast<editing::BrushMode>(mode);
-  if (brush_.mode != editing::BrushMode::Smooth) ImGui::InputDouble("value", &brush_.value, 0.0, 0.0, "%.4g");
+  if (ImGui::Combo("mode", &mode, kModes, IM_ARRAYSIZE(kModes)))
+    brush_.mode = static_cast<editing::BrushMode>(mode);
+  if (brush_.mode != editing::BrushMode::Smooth)
+    ImGui::InputDouble("value", &brush_.value, 0.0, 0.0, "%.4g");
   float strength = static_cast<float>(brush_.strength);
   if (ImGui::SliderFloat("strength", &strength, 0.0f, 1.0f)) brush_.strength = strength;
   help("Shift+F then move the mouse (Blender)");
   float radius = static_cast<float>(brush_.radius);
   if (ImGui::InputFloat("radius", &radius, 0, 0, "%.3g") && radius > 0.0f) brush_.radius = radius;
-  help("Scene units. F then move the mouse, click to confirm, right click or Esc to cancel (Blender).");
+  help(
+      "Scene units. F then move the mouse, click to confirm, right click or Esc to cancel "
+      "(Blender).");
   int falloff = static_cast<int>(brush_.falloff);
   if (ImGui::Combo("falloff", &falloff, kFalloffs, IM_ARRAYSIZE(kFalloffs)))
     brush_.falloff = static_cast<editing::Falloff>(falloff);
@@ -306,7 +344,9 @@ void Window::displayPanel(const Snapshot& s) {
       message(std::string("subdivision: ") + e.what());
     }
   }
-  help("Levels of the interpolating Doo-Sabin surface drawn over the control mesh (0: the control mesh).");
+  help(
+      "Levels of the interpolating Doo-Sabin surface drawn over the control mesh (0: the control "
+      "mesh).");
   ImGui::Checkbox("colour by", &view_.colourByProperty);
   ImGui::SameLine();
   int property = static_cast<int>(s.scalarProperty);
@@ -316,7 +356,8 @@ void Window::displayPanel(const Snapshot& s) {
     view_.colourByProperty = true;
   }
   int map = static_cast<int>(view_.colorMap);
-  if (ImGui::Combo("colour map", &map, kMaps, IM_ARRAYSIZE(kMaps))) view_.colorMap = static_cast<render::ColorMap>(map);
+  if (ImGui::Combo("colour map", &map, kMaps, IM_ARRAYSIZE(kMaps)))
+    view_.colorMap = static_cast<render::ColorMap>(map);
   ImGui::Checkbox("automatic range", &view_.autoRange);
   if (!view_.autoRange) {
     float range[2] = {static_cast<float>(view_.rangeMin), static_cast<float>(view_.rangeMax)};
@@ -388,10 +429,13 @@ void Window::plotStrip() {
 }
 
 void Window::statisticsPanel(const Snapshot& s) {
-  ImGui::Text("V / E / F: %d / %d / %d", mesh_->numVertices(), mesh_->numEdges(), mesh_->numFaces());
+  ImGui::Text("V / E / F: %d / %d / %d", mesh_->numVertices(), mesh_->numEdges(),
+              mesh_->numFaces());
   if (builder_->stencil())
-    ImGui::Text("drawn: %d vertices at level %d", builder_->stencil()->numRefinedVertices(), builder_->levels());
-  ImGui::Text("solver: %.3f ms per step (T = %.1f ms)", 1e3 * s.solverSecondsPerStep, 1e3 * s.period);
+    ImGui::Text("drawn: %d vertices at level %d", builder_->stencil()->numRefinedVertices(),
+                builder_->levels());
+  ImGui::Text("solver: %.3f ms per step (T = %.1f ms)", 1e3 * s.solverSecondsPerStep,
+              1e3 * s.period);
   ImGui::Text("display: %.1f frames/s", static_cast<double>(ImGui::GetIO().Framerate));
   ImGui::Text("simulated / wall time: %.3f", s.simOverWall);
   ImGui::Text("cycles: %llu, divergences: %llu", static_cast<unsigned long long>(s.cycle),
@@ -413,7 +457,9 @@ void Window::filePanel(const Snapshot& s) {
       openModel(pathField_);
     }
   }
-  help("A mesh file assimp reads (OBJ, PLY, STL, OFF, glTF, FBX, ...), builtin:NAME, or a scene (.json).");
+  help(
+      "A mesh file assimp reads (OBJ, PLY, STL, OFF, glTF, FBX, ...), builtin:NAME, or a scene "
+      "(.json).");
   ImGui::InputText("##scene", &sceneField_);
   ImGui::SameLine();
   if (ImGui::Button("Save scene")) saveScene(sceneField_, false);
@@ -422,7 +468,8 @@ void Window::filePanel(const Snapshot& s) {
   ImGui::SameLine();
   if (ImGui::Button("Save mesh")) saveMesh(meshField_);
   help("The current shape: .obj .ply .stl .gltf .glb .dae");
-  if (ImGui::Button("Screenshot (F12)")) takeScreenshot("screenshot_" + std::to_string(++screenshotCounter_), true);
+  if (ImGui::Button("Screenshot (F12)"))
+    takeScreenshot("screenshot_" + std::to_string(++screenshotCounter_), true);
 }
 
 void Window::messagePanel() {
@@ -510,9 +557,12 @@ void Window::overlays(const Snapshot& s) {
   ImDrawList* draw = ImGui::GetForegroundDrawList();
   const float k = static_cast<float>(1.0 / pixelScale_);
   if (adjust_ != Adjust::None) {
-    const ImVec2 centre(static_cast<float>(adjustCentreX_) * k, static_cast<float>(adjustCentreY_) * k);
+    const ImVec2 centre(static_cast<float>(adjustCentreX_) * k,
+                        static_cast<float>(adjustCentreY_) * k);
     const float r = adjust_ == Adjust::Radius
-                        ? static_cast<float>(brush_.radius / worldPerPixel(camera_, viewHeight_, camera_.target)) * k
+                        ? static_cast<float>(brush_.radius /
+                                             worldPerPixel(camera_, viewHeight_, camera_.target)) *
+                              k
                         : static_cast<float>(brush_.strength * 200.0);
     draw->AddCircle(centre, r, IM_COL32(255, 255, 255, 230), 64, 2.0f);
     draw->AddCircle(centre, r + 1.5f, IM_COL32(30, 30, 40, 200), 64, 1.0f);
@@ -523,12 +573,13 @@ void Window::overlays(const Snapshot& s) {
       std::snprintf(text, sizeof text, "strength %.2f", brush_.strength);
     draw->AddText(ImVec2(centre.x + 6, centre.y - 8), IM_COL32(20, 20, 30, 255), text);
   }
-  if (gesture_ == Gesture::Tool && (tool_ == Tool::Force || tool_ == Tool::Torque) && toolVertex_ >= 0 &&
-      toolVertex_ < s.position.rows()) {
+  if (gesture_ == Gesture::Tool && (tool_ == Tool::Force || tool_ == Tool::Torque) &&
+      toolVertex_ >= 0 && toolVertex_ < s.position.rows()) {
     const auto a = projectToPixel(camera_, viewWidth_, viewHeight_, toolAnchor_);
     const auto b = projectToPixel(camera_, viewWidth_, viewHeight_, loadEnd_);
     if (a && b) {
-      const ImU32 colour = tool_ == Tool::Force ? IM_COL32(255, 140, 26, 255) : IM_COL32(155, 79, 209, 255);
+      const ImU32 colour =
+          tool_ == Tool::Force ? IM_COL32(255, 140, 26, 255) : IM_COL32(155, 79, 209, 255);
       const ImVec2 pa(static_cast<float>(a->x()) * k, static_cast<float>(a->y()) * k);
       const ImVec2 pb(static_cast<float>(b->x()) * k, static_cast<float>(b->y()) * k);
       draw->AddLine(pa, pb, colour, 3.0f);

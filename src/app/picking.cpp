@@ -1,9 +1,8 @@
 #include "zsculpt/app/picking.h"
 
+#include <Eigen/LU>
 #include <cmath>
 #include <limits>
-
-#include <Eigen/LU>
 
 namespace zsculpt::app {
 
@@ -27,8 +26,8 @@ Ray rayThroughPixel(const render::Camera& camera, int width, int height, double 
 std::optional<Eigen::Vector2d> projectToPixel(const render::Camera& camera, int width, int height,
                                               const Vec3& point) {
   const double aspect = static_cast<double>(width) / std::max(height, 1);
-  const Eigen::Vector4d clip =
-      camera.projectionMatrix(aspect) * camera.viewMatrix() * Eigen::Vector4d(point.x(), point.y(), point.z(), 1.0);
+  const Eigen::Vector4d clip = camera.projectionMatrix(aspect) * camera.viewMatrix() *
+                               Eigen::Vector4d(point.x(), point.y(), point.z(), 1.0);
   if (!(clip.w() > 0.0)) return std::nullopt;
   const double nx = clip.x() / clip.w();
   const double ny = clip.y() / clip.w();

@@ -54,7 +54,8 @@ Points pointsFromJson(const json& j, const std::string& where, Index rows) {
   Points p(rows, 3);
   for (Index i = 0; i < rows; ++i) {
     const json& r = j[static_cast<size_t>(i)];
-    if (!r.is_array() || r.size() != 3 || !r[0].is_number() || !r[1].is_number() || !r[2].is_number())
+    if (!r.is_array() || r.size() != 3 || !r[0].is_number() || !r[1].is_number() ||
+        !r[2].is_number())
       throw InvalidInputError(where + ": row " + std::to_string(i) + ": expected [x, y, z]");
     for (int c = 0; c < 3; ++c) p(i, c) = r[static_cast<size_t>(c)].get<double>();
   }
@@ -66,7 +67,7 @@ SessionSetup setupFromHeader(const json& header, const std::string& path,
   const std::string where = path + ": line 1";
   for (auto it = header.begin(); it != header.end(); ++it) {
     static const char* keys[] = {"zsculpt_recording", "scheme", "period", "mesh_hash", "scene",
-                                 "initial_state", "source"};
+                                 "initial_state",     "source"};
     if (std::find_if(std::begin(keys), std::end(keys),
                      [&](const char* k) { return it.key() == k; }) == std::end(keys))
       throw InvalidInputError(where + ": " + it.key() + ": unknown field");
@@ -94,7 +95,8 @@ SessionSetup setupFromHeader(const json& header, const std::string& path,
   if (!period.is_number() || !(period.get<double>() > 0.0) || !std::isfinite(period.get<double>()))
     throw InvalidInputError(where + ": period: expected a positive number of seconds");
   setup.period = period.get<double>();
-  if (header.contains("mesh_hash")) meshHashOut = parseHex(header.at("mesh_hash"), where + ": mesh_hash");
+  if (header.contains("mesh_hash"))
+    meshHashOut = parseHex(header.at("mesh_hash"), where + ": mesh_hash");
   setup.mesh = io::loadMeshSource(setup.scene.mesh);
   if (meshHashOut && meshHash(setup.mesh) != *meshHashOut)
     throw InvalidInputError(path + ": the mesh " + setup.scene.mesh +
@@ -108,7 +110,8 @@ SessionSetup setupFromHeader(const json& header, const std::string& path,
     state.position = pointsFromJson(s.at("position"), where + ": initial_state/position", n);
     state.velocity = pointsFromJson(s.at("velocity"), where + ": initial_state/velocity", n);
     if (s.contains("time")) {
-      if (!s.at("time").is_number()) throw InvalidInputError(where + ": initial_state/time: not a number");
+      if (!s.at("time").is_number())
+        throw InvalidInputError(where + ": initial_state/time: not a number");
       state.time = s.at("time").get<double>();
     }
     setup.initial = std::move(state);
@@ -140,7 +143,8 @@ nlohmann::json recordingHeader(const SessionSetup& setup, const std::string& rec
 
 Recording readRecording(const std::string& path) {
   std::error_code ec;
-  if (std::filesystem::is_directory(path, ec)) throw IOError(path + ": is a folder, not a recording");
+  if (std::filesystem::is_directory(path, ec))
+    throw IOError(path + ": is a folder, not a recording");
   std::ifstream in(path, std::ios::binary);
   if (!in) throw IOError(path + ": cannot open: " + std::strerror(errno));
   Recording rec;
@@ -169,13 +173,15 @@ Recording readRecording(const std::string& path) {
       rec.ui.emplace_back(number, std::move(j));
     } else if (j.contains("end_cycle")) {
       const json& e = j.at("end_cycle");
-      if (!e.is_number_unsigned()) throw InvalidInputError(where + ": end_cycle: expected a cycle count");
+      if (!e.is_number_unsigned())
+        throw InvalidInputError(where + ": end_cycle: expected a cycle count");
       rec.endCycle = e.get<std::uint64_t>();
       if (*rec.endCycle > kMaxRecordedCycle)
         throw InvalidInputError(where + ": end_cycle " + std::to_string(*rec.endCycle) +
                                 " is more cycles than a session records (at most " +
                                 std::to_string(kMaxRecordedCycle) + ")");
-      if (j.contains("state_hash")) rec.stateHash = parseHex(j.at("state_hash"), where + ": state_hash");
+      if (j.contains("state_hash"))
+        rec.stateHash = parseHex(j.at("state_hash"), where + ": state_hash");
     } else {
       if (!j.contains("cycle") || !j.at("cycle").is_number_unsigned())
         throw InvalidInputError(where + ": expected \"cycle\" (a step count) with the command");
@@ -185,8 +191,8 @@ Recording readRecording(const std::string& path) {
                                 " is more cycles than a session records (at most " +
                                 std::to_string(kMaxRecordedCycle) + ")");
       if (cycle < lastCycle)
-        throw InvalidInputError(where + ": cycle " + std::to_string(cycle) +
-                                " comes after cycle " + std::to_string(lastCycle));
+        throw InvalidInputError(where + ": cycle " + std::to_string(cycle) + " comes after cycle " +
+                                std::to_string(lastCycle));
       lastCycle = cycle;
       j.erase("cycle");
       rec.commands.push_back({cycle, commandFromJson(j, where)});
@@ -264,7 +270,8 @@ void Recorder::write(bool withFooter) {
 
 ReplayResult replay(const Recording& recording, const ReplayOptions& options) {
   if (!recording.setup)
-    throw InvalidInputError("recording: no header line (a script without a model cannot be replayed)");
+    throw InvalidInputError(
+        "recording: no header line (a script without a model cannot be replayed)");
   Session session(*recording.setup);
   ReplayResult result;
   std::uint64_t end = recording.endCycle.value_or(options.endCycle);
@@ -307,9 +314,9 @@ ReplayResult replay(const Recording& recording, const ReplayOptions& options) {
   auto row = [&](std::uint64_t step) {
     const Diagnostics d = session.simulation().diagnostics();
     csv << step << ',' << session.simulation().time() << ',' << d.kinetic << ','
-        << d.potential.total() << ',' << d.total() << ',' << d.momentum.x() << ','
-        << d.momentum.y() << ',' << d.momentum.z() << ',' << d.angularMomentum.x() << ','
-        << d.angularMomentum.y() << ',' << d.angularMomentum.z() << '\n';
+        << d.potential.total() << ',' << d.total() << ',' << d.momentum.x() << ',' << d.momentum.y()
+        << ',' << d.momentum.z() << ',' << d.angularMomentum.x() << ',' << d.angularMomentum.y()
+        << ',' << d.angularMomentum.z() << '\n';
   };
   auto frame = [&](const std::string& name) {
     if (!renderer) return;
@@ -346,7 +353,8 @@ ReplayResult replay(const Recording& recording, const ReplayOptions& options) {
     session.takeNotices(notices);
     if (writing) {
       row(cycle + 1);
-      if (options.frameEvery > 0 && (cycle + 1) % options.frameEvery == 0) frame(frameName(cycle + 1));
+      if (options.frameEvery > 0 && (cycle + 1) % options.frameEvery == 0)
+        frame(frameName(cycle + 1));
     }
   }
   for (std::string& n : notices) result.notices.push_back(std::move(n));

@@ -18,8 +18,12 @@ namespace zsculpt::app {
 
 namespace {
 
-Scheme toScheme(io::SimulationScheme s) { return schemeFromName(io::schemeName(s)); }
-io::SimulationScheme toSceneScheme(Scheme s) { return io::schemeFromName(schemeName(s)); }
+Scheme toScheme(io::SimulationScheme s) {
+  return schemeFromName(io::schemeName(s));
+}
+io::SimulationScheme toSceneScheme(Scheme s) {
+  return io::schemeFromName(schemeName(s));
+}
 
 // FNV-1a over raw bytes: states equal bit for bit hash equal.
 void fnv(std::uint64_t& h, const void* data, size_t bytes) {
@@ -30,7 +34,9 @@ void fnv(std::uint64_t& h, const void* data, size_t bytes) {
   }
 }
 
-std::string vertexText(Index v) { return "vertex " + std::to_string(v); }
+std::string vertexText(Index v) {
+  return "vertex " + std::to_string(v);
+}
 
 }  // namespace
 
@@ -137,8 +143,8 @@ Session::Session(SessionSetup setup)
   checkpoints_[0] = initial_;
   checkpoints_[1] = initial_;
   const BoundingBox box = mesh.boundingBox();
-  sizeLimit_ = kDivergenceScale *
-               std::max({box.diagonal(), box.min.cwiseAbs().maxCoeff(), box.max.cwiseAbs().maxCoeff(), 1.0});
+  sizeLimit_ = kDivergenceScale * std::max({box.diagonal(), box.min.cwiseAbs().maxCoeff(),
+                                            box.max.cwiseAbs().maxCoeff(), 1.0});
   region_ = editing::BrushRegion(mesh);
   refreshLimits(true);
   if (std::isfinite(tMax_) && tMax_ > 0.0) periodFraction_ = sim_->period() / tMax_;
@@ -178,7 +184,8 @@ std::vector<Index> Session::pins() const {
 void Session::refreshLimits(bool tight) {
   const SystemMatrices& system = sim_->stepper().system();
   tMax_ = criticalPeriod(system);
-  const double maxDiagonal = system.omega2().size() > 0 ? system.omega2().diagonal().maxCoeff() : 0.0;
+  const double maxDiagonal =
+      system.omega2().size() > 0 ? system.omega2().diagonal().maxCoeff() : 0.0;
   stableLimit_ = maxDiagonal > 0.0 ? stablePeriodLimit(sim_->stepper().scheme(), 2.0 * maxDiagonal)
                                    : std::numeric_limits<double>::infinity();
   // Gershgorin's bound is never above the tight limit. For a period above it the largest
@@ -195,14 +202,15 @@ void Session::refreshLimits(bool tight) {
 
 void Session::keepPeriodFraction() {
   const double wanted = periodFraction_ * tMax_;
-  if (!std::isfinite(wanted) || !(wanted > 0.0) || !(sim_->period() > wanted * (1.0 + 1e-9))) return;
+  if (!std::isfinite(wanted) || !(wanted > 0.0) || !(sim_->period() > wanted * (1.0 + 1e-9)))
+    return;
   const double before = sim_->period();
   changeTimeStep(sim_->stepper().scheme(), wanted);
   refreshLimits();
   std::ostringstream msg;
   msg.precision(4);
-  msg << "the edit lowered T_max to " << tMax_ << " s: time step " << before << " s -> "
-      << wanted << " s (" << periodFraction_ << " T_max)";
+  msg << "the edit lowered T_max to " << tMax_ << " s: time step " << before << " s -> " << wanted
+      << " s (" << periodFraction_ << " T_max)";
   notices_.push_back(msg.str());
 }
 
@@ -231,232 +239,231 @@ void Session::apply(const Command& command) {
   const Index n = sim_->model().mesh.numVertices();
   auto checkVertex = [n](Index v, const char* what) {
     if (v < 0 || v >= n)
-      throw InvalidInputError(std::string(what) + ": " + vertexText(v) +
-                              " is out of range [0, " + std::to_string(n) + ")");
+      throw InvalidInputError(std::string(what) + ": " + vertexText(v) + " is out of range [0, " +
+                              std::to_string(n) + ")");
   };
   auto checkFinite = [](const Vec3& v, const char* what) {
     if (!v.allFinite()) throw InvalidInputError(std::string(what) + ": not finite");
   };
   const double now = sim_->time();
-  std::visit(
-      Overloaded{
-          [&](const Play&) { running_ = true; },
-          [&](const Pause&) { running_ = false; },
-          [&](const StepOnce&) { stepRequest_ = true; },
-          [&](const Reset&) {
-            sim_->setState(initial_);
-            forces_ = baseForces_;
-            torques_ = baseTorques_;
-            reloadLoads();
-            endDrag();
-            sim_->clearConstraints();
-            addSceneConstraints();
-            checkpoints_[0] = initial_;
-            checkpoints_[1] = initial_;
-          },
-          [&](const SetTimeStep& s) {
-            if (s.scheme == sim_->stepper().scheme() && s.period == sim_->period()) return;
-            changeTimeStep(s.scheme, s.period);
-            refreshLimits(true);
-            if (std::isfinite(tMax_) && tMax_ > 0.0) periodFraction_ = s.period / tMax_;
-            unsaved_ = true;
-          },
-          [&](const SetGravity& g) {
-            checkFinite(g.gravity, "gravity");
-            sim_->mutableProperties().gravity = g.gravity;
-            sim_->propertiesChanged({});
-            unsaved_ = true;
-          },
-          [&](const SetStiffnessCap& c) {
-            if (!(c.cap > 0.0))
-              throw InvalidInputError("stiffness cap: must be positive (infinity: none)");
-            sim_->mutableProperties().stiffnessCap = c.cap;
-            sim_->allPropertiesChanged();
-            refreshLimits();
-            keepPeriodFraction();
-            unsaved_ = true;
-          },
-          [&](const Edit& e) {
-            const editing::EditTarget target{sim_->model().mesh, sim_->model().angles,
-                                             sim_->mutableProperties()};
-            // The simulation takes the new values before the edit enters the history; if it
-            // refuses them (the exact scheme and a mass or damping no longer proportional),
-            // the editor writes the old ones back and the simulation is brought back to
-            // them: the command changes nothing.
-            bool whole = false;
-            std::vector<Index> rows;
-            auto update = [&] {
-              if (whole)
-                sim_->allPropertiesChanged();
-              else
-                sim_->propertiesChanged(rows);
-            };
-            const editing::Editor::Acceptance accept = [&](const editing::EditResult& r) {
-              whole = r.wholeModel;
-              rows.assign(r.matrixRows.begin(), r.matrixRows.end());
-              update();
-            };
-            editing::EditResult result;
-            try {
-              result = editor_.apply(target, sim_->state(), e.command, accept);
-            } catch (...) {
-              if (whole || !rows.empty()) update();
-              throw;
-            }
-            if (!result.changed) return;
-            refreshLimits();
-            keepPeriodFraction();
-            unsaved_ = true;
-          },
-          [&](const AddLoad& l) {
-            const char* what = l.kind == LoadKind::Force ? "force" : "torque";
-            if (!(l.duration > 0.0))
-              throw InvalidInputError(std::string(what) + ": duration must be positive");
-            // Everything is checked before anything changes (a refused command is not
-            // recorded, so it must leave no trace).
-            checkVertex(l.vertex, what);
-            checkFinite(l.value, what);
-            if (l.kind == LoadKind::Torque && sim_->model().mesh.valence(l.vertex) == 0)
-              throw InvalidInputError("torque: " + vertexText(l.vertex) +
-                                      " has no neighbours to carry a torque");
-            const TimedLoad load{l.vertex, l.value, now, now + l.duration};
-            // Simulation validates (vertex, finiteness, a torque needs neighbours) and
-            // appends; expired loads are dropped first so the lists stay short.
-            auto expired = [now](const TimedLoad& t) { return t.end <= now; };
-            std::erase_if(forces_, expired);
-            std::erase_if(torques_, expired);
-            reloadLoads();
-            if (l.kind == LoadKind::Force) {
-              sim_->addForce(load);
-              forces_.push_back(load);
-            } else {
-              sim_->addTorque(load);
-              torques_.push_back(load);
-            }
-          },
-          [&](const ClearLoads&) {
-            forces_.clear();
-            torques_.clear();
-            sim_->clearLoads();
-          },
-          [&](const Pin& p) {
-            checkVertex(p.vertex, "pin");
-            if (p.target) checkFinite(*p.target, "pin target");
-            const auto id = sim_->constraints().find(ConstraintKind::Position, p.vertex);
-            if (id && !(dragOwnsConstraint_ && *id == dragId_)) {
-              if (p.target) sim_->setConstraintTarget(*id, *p.target);
-            } else if (id) {
-              // Pinning the dragged vertex: its drag constraint becomes the pin.
-              dragOwnsConstraint_ = false;
-              if (p.target) sim_->setConstraintTarget(*id, *p.target);
-            } else {
-              sim_->addPositionConstraint(p.vertex, p.target);
-            }
-            unsaved_ = true;  // the pins are part of the scene a save writes
-          },
-          [&](const Unpin& p) {
-            checkVertex(p.vertex, "unpin");
-            const auto id = sim_->constraints().find(ConstraintKind::Position, p.vertex);
-            if (!id || (dragOwnsConstraint_ && *id == dragId_)) return;
-            if (p.vertex == dragVertex_)
-              dragOwnsConstraint_ = true;  // the drag keeps holding it until released
-            else
-              sim_->removeConstraint(*id);
-            unsaved_ = true;
-          },
-          [&](const PinBrush& p) {
-            region_.compute(sim_->model().mesh, sim_->state().position, p.centre, p.radius,
-                            editing::Falloff::Constant, editing::DistanceKind::Surface);
-            // All or nothing: a pin refused part way (it would contradict a normal pin)
-            // takes the ones this brush added with it.
-            std::vector<Index> added;
-            try {
-              for (Index v : region_.vertices()) {
-                if (v == dragVertex_) continue;
-                const auto id = sim_->constraints().find(ConstraintKind::Position, v);
-                if (p.pin && !id)
-                  added.push_back(sim_->addPositionConstraint(v, std::nullopt));
-                else if (!p.pin && id)
-                  sim_->removeConstraint(*id);
-              }
-            } catch (...) {
-              for (Index id : added) sim_->removeConstraint(id);
-              throw;
-            }
-            unsaved_ = true;
-          },
-          [&](const UnpinAll&) {
-            const bool dragging = dragVertex_ >= 0;
-            const Index vertex = dragVertex_;
-            const Vec3 target = dragTarget_;
-            dragVertex_ = -1;
-            sim_->clearConstraints();
-            if (dragging) {
-              dragVertex_ = vertex;
-              dragId_ = sim_->addPositionConstraint(vertex, target);
-              dragOwnsConstraint_ = true;
-            }
-            unsaved_ = true;
-          },
-          [&](const PinNormal& p) {
-            checkVertex(p.vertex, "normal pin");
-            if (p.normal) checkFinite(*p.normal, "normal pin");
-            const auto id = sim_->constraints().find(ConstraintKind::Normal, p.vertex);
-            if (id) {
-              if (p.normal) sim_->setConstraintNormal(*id, *p.normal);
-            } else {
-              if (!p.normal &&
-                  !bestPlaneNormal(sim_->model().mesh, sim_->state().position, p.vertex))
-                throw InvalidInputError("normal pin: " + vertexText(p.vertex) +
-                                        " has no normal (too few or collinear neighbours)");
-              sim_->addNormalConstraint(p.vertex, p.normal);
-            }
-            unsaved_ = true;
-          },
-          [&](const UnpinNormal& p) {
-            checkVertex(p.vertex, "unpin normal");
-            if (const auto id = sim_->constraints().find(ConstraintKind::Normal, p.vertex)) {
-              sim_->removeConstraint(*id);
-              unsaved_ = true;
-            }
-          },
-          [&](const DragStart& d) {
-            checkVertex(d.vertex, "drag");
-            checkFinite(d.target, "drag target");
-            // Refused (the new drag would contradict a normal pin), nothing changes: the
-            // current drag goes on. Its own constraint moves to the new vertex in one step,
-            // checked without it where it was.
-            const auto pinned = sim_->constraints().find(ConstraintKind::Position, d.vertex);
-            const bool ownDrag = dragVertex_ >= 0 && dragOwnsConstraint_;
-            if (pinned && !(ownDrag && *pinned == dragId_)) {
-              // A pinned vertex is dragged by its pin (which stays where it is released).
-              endDrag();
-              dragId_ = *pinned;
-              dragOwnsConstraint_ = false;
-              sim_->setConstraintTarget(dragId_, d.target);
-              unsaved_ = true;  // the pin's target is saved with the scene
-            } else if (ownDrag) {
-              sim_->moveConstraint(dragId_, d.vertex, d.target);
-            } else {
-              const Index id = sim_->addPositionConstraint(d.vertex, d.target);
-              endDrag();  // a drag that held a pin leaves it where it is
-              dragId_ = id;
-              dragOwnsConstraint_ = true;
-            }
-            dragVertex_ = d.vertex;
-            dragTarget_ = d.target;
-          },
-          [&](const DragMove& d) {
-            checkFinite(d.target, "drag target");
-            if (dragVertex_ < 0) return;
-            dragTarget_ = d.target;
-            sim_->setConstraintTarget(dragId_, d.target);
-            if (!dragOwnsConstraint_) unsaved_ = true;  // a pin moved
-          },
-          [&](const DragEnd&) { endDrag(); },
-          [&](const MarkSaved&) { unsaved_ = false; },
-      },
-      command);
+  std::visit(Overloaded{
+                 [&](const Play&) { running_ = true; },
+                 [&](const Pause&) { running_ = false; },
+                 [&](const StepOnce&) { stepRequest_ = true; },
+                 [&](const Reset&) {
+                   sim_->setState(initial_);
+                   forces_ = baseForces_;
+                   torques_ = baseTorques_;
+                   reloadLoads();
+                   endDrag();
+                   sim_->clearConstraints();
+                   addSceneConstraints();
+                   checkpoints_[0] = initial_;
+                   checkpoints_[1] = initial_;
+                 },
+                 [&](const SetTimeStep& s) {
+                   if (s.scheme == sim_->stepper().scheme() && s.period == sim_->period()) return;
+                   changeTimeStep(s.scheme, s.period);
+                   refreshLimits(true);
+                   if (std::isfinite(tMax_) && tMax_ > 0.0) periodFraction_ = s.period / tMax_;
+                   unsaved_ = true;
+                 },
+                 [&](const SetGravity& g) {
+                   checkFinite(g.gravity, "gravity");
+                   sim_->mutableProperties().gravity = g.gravity;
+                   sim_->propertiesChanged({});
+                   unsaved_ = true;
+                 },
+                 [&](const SetStiffnessCap& c) {
+                   if (!(c.cap > 0.0))
+                     throw InvalidInputError("stiffness cap: must be positive (infinity: none)");
+                   sim_->mutableProperties().stiffnessCap = c.cap;
+                   sim_->allPropertiesChanged();
+                   refreshLimits();
+                   keepPeriodFraction();
+                   unsaved_ = true;
+                 },
+                 [&](const Edit& e) {
+                   const editing::EditTarget target{sim_->model().mesh, sim_->model().angles,
+                                                    sim_->mutableProperties()};
+                   // The simulation takes the new values before the edit enters the history; if it
+                   // refuses them (the exact scheme and a mass or damping no longer proportional),
+                   // the editor writes the old ones back and the simulation is brought back to
+                   // them: the command changes nothing.
+                   bool whole = false;
+                   std::vector<Index> rows;
+                   auto update = [&] {
+                     if (whole)
+                       sim_->allPropertiesChanged();
+                     else
+                       sim_->propertiesChanged(rows);
+                   };
+                   const editing::Editor::Acceptance accept = [&](const editing::EditResult& r) {
+                     whole = r.wholeModel;
+                     rows.assign(r.matrixRows.begin(), r.matrixRows.end());
+                     update();
+                   };
+                   editing::EditResult result;
+                   try {
+                     result = editor_.apply(target, sim_->state(), e.command, accept);
+                   } catch (...) {
+                     if (whole || !rows.empty()) update();
+                     throw;
+                   }
+                   if (!result.changed) return;
+                   refreshLimits();
+                   keepPeriodFraction();
+                   unsaved_ = true;
+                 },
+                 [&](const AddLoad& l) {
+                   const char* what = l.kind == LoadKind::Force ? "force" : "torque";
+                   if (!(l.duration > 0.0))
+                     throw InvalidInputError(std::string(what) + ": duration must be positive");
+                   // Everything is checked before anything changes (a refused command is not
+                   // recorded, so it must leave no trace).
+                   checkVertex(l.vertex, what);
+                   checkFinite(l.value, what);
+                   if (l.kind == LoadKind::Torque && sim_->model().mesh.valence(l.vertex) == 0)
+                     throw InvalidInputError("torque: " + vertexText(l.vertex) +
+                                             " has no neighbours to carry a torque");
+                   const TimedLoad load{l.vertex, l.value, now, now + l.duration};
+                   // Simulation validates (vertex, finiteness, a torque needs neighbours) and
+                   // appends; expired loads are dropped first so the lists stay short.
+                   auto expired = [now](const TimedLoad& t) { return t.end <= now; };
+                   std::erase_if(forces_, expired);
+                   std::erase_if(torques_, expired);
+                   reloadLoads();
+                   if (l.kind == LoadKind::Force) {
+                     sim_->addForce(load);
+                     forces_.push_back(load);
+                   } else {
+                     sim_->addTorque(load);
+                     torques_.push_back(load);
+                   }
+                 },
+                 [&](const ClearLoads&) {
+                   forces_.clear();
+                   torques_.clear();
+                   sim_->clearLoads();
+                 },
+                 [&](const Pin& p) {
+                   checkVertex(p.vertex, "pin");
+                   if (p.target) checkFinite(*p.target, "pin target");
+                   const auto id = sim_->constraints().find(ConstraintKind::Position, p.vertex);
+                   if (id && !(dragOwnsConstraint_ && *id == dragId_)) {
+                     if (p.target) sim_->setConstraintTarget(*id, *p.target);
+                   } else if (id) {
+                     // Pinning the dragged vertex: its drag constraint becomes the pin.
+                     dragOwnsConstraint_ = false;
+                     if (p.target) sim_->setConstraintTarget(*id, *p.target);
+                   } else {
+                     sim_->addPositionConstraint(p.vertex, p.target);
+                   }
+                   unsaved_ = true;  // the pins are part of the scene a save writes
+                 },
+                 [&](const Unpin& p) {
+                   checkVertex(p.vertex, "unpin");
+                   const auto id = sim_->constraints().find(ConstraintKind::Position, p.vertex);
+                   if (!id || (dragOwnsConstraint_ && *id == dragId_)) return;
+                   if (p.vertex == dragVertex_)
+                     dragOwnsConstraint_ = true;  // the drag keeps holding it until released
+                   else
+                     sim_->removeConstraint(*id);
+                   unsaved_ = true;
+                 },
+                 [&](const PinBrush& p) {
+                   region_.compute(sim_->model().mesh, sim_->state().position, p.centre, p.radius,
+                                   editing::Falloff::Constant, editing::DistanceKind::Surface);
+                   // All or nothing: a pin refused part way (it would contradict a normal pin)
+                   // takes the ones this brush added with it.
+                   std::vector<Index> added;
+                   try {
+                     for (Index v : region_.vertices()) {
+                       if (v == dragVertex_) continue;
+                       const auto id = sim_->constraints().find(ConstraintKind::Position, v);
+                       if (p.pin && !id)
+                         added.push_back(sim_->addPositionConstraint(v, std::nullopt));
+                       else if (!p.pin && id)
+                         sim_->removeConstraint(*id);
+                     }
+                   } catch (...) {
+                     for (Index id : added) sim_->removeConstraint(id);
+                     throw;
+                   }
+                   unsaved_ = true;
+                 },
+                 [&](const UnpinAll&) {
+                   const bool dragging = dragVertex_ >= 0;
+                   const Index vertex = dragVertex_;
+                   const Vec3 target = dragTarget_;
+                   dragVertex_ = -1;
+                   sim_->clearConstraints();
+                   if (dragging) {
+                     dragVertex_ = vertex;
+                     dragId_ = sim_->addPositionConstraint(vertex, target);
+                     dragOwnsConstraint_ = true;
+                   }
+                   unsaved_ = true;
+                 },
+                 [&](const PinNormal& p) {
+                   checkVertex(p.vertex, "normal pin");
+                   if (p.normal) checkFinite(*p.normal, "normal pin");
+                   const auto id = sim_->constraints().find(ConstraintKind::Normal, p.vertex);
+                   if (id) {
+                     if (p.normal) sim_->setConstraintNormal(*id, *p.normal);
+                   } else {
+                     if (!p.normal &&
+                         !bestPlaneNormal(sim_->model().mesh, sim_->state().position, p.vertex))
+                       throw InvalidInputError("normal pin: " + vertexText(p.vertex) +
+                                               " has no normal (too few or collinear neighbours)");
+                     sim_->addNormalConstraint(p.vertex, p.normal);
+                   }
+                   unsaved_ = true;
+                 },
+                 [&](const UnpinNormal& p) {
+                   checkVertex(p.vertex, "unpin normal");
+                   if (const auto id = sim_->constraints().find(ConstraintKind::Normal, p.vertex)) {
+                     sim_->removeConstraint(*id);
+                     unsaved_ = true;
+                   }
+                 },
+                 [&](const DragStart& d) {
+                   checkVertex(d.vertex, "drag");
+                   checkFinite(d.target, "drag target");
+                   // Refused (the new drag would contradict a normal pin), nothing changes: the
+                   // current drag goes on. Its own constraint moves to the new vertex in one step,
+                   // checked without it where it was.
+                   const auto pinned = sim_->constraints().find(ConstraintKind::Position, d.vertex);
+                   const bool ownDrag = dragVertex_ >= 0 && dragOwnsConstraint_;
+                   if (pinned && !(ownDrag && *pinned == dragId_)) {
+                     // A pinned vertex is dragged by its pin (which stays where it is released).
+                     endDrag();
+                     dragId_ = *pinned;
+                     dragOwnsConstraint_ = false;
+                     sim_->setConstraintTarget(dragId_, d.target);
+                     unsaved_ = true;  // the pin's target is saved with the scene
+                   } else if (ownDrag) {
+                     sim_->moveConstraint(dragId_, d.vertex, d.target);
+                   } else {
+                     const Index id = sim_->addPositionConstraint(d.vertex, d.target);
+                     endDrag();  // a drag that held a pin leaves it where it is
+                     dragId_ = id;
+                     dragOwnsConstraint_ = true;
+                   }
+                   dragVertex_ = d.vertex;
+                   dragTarget_ = d.target;
+                 },
+                 [&](const DragMove& d) {
+                   checkFinite(d.target, "drag target");
+                   if (dragVertex_ < 0) return;
+                   dragTarget_ = d.target;
+                   sim_->setConstraintTarget(dragId_, d.target);
+                   if (!dragOwnsConstraint_) unsaved_ = true;  // a pin moved
+                 },
+                 [&](const DragEnd&) { endDrag(); },
+                 [&](const MarkSaved&) { unsaved_ = false; },
+             },
+             command);
 }
 
 // ---- the cycle --------------------------------------------------------------------------------

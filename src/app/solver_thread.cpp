@@ -11,7 +11,9 @@ namespace zsculpt::app {
 
 namespace {
 using Clock = std::chrono::steady_clock;
-double seconds(Clock::duration d) { return std::chrono::duration<double>(d).count(); }
+double seconds(Clock::duration d) {
+  return std::chrono::duration<double>(d).count();
+}
 }  // namespace
 
 SolverThread::SolverThread(std::unique_ptr<Session> session, const SolverThreadOptions& options,
@@ -24,7 +26,9 @@ SolverThread::SolverThread(std::unique_ptr<Session> session, const SolverThreadO
   if (options_.startRunning) session_->apply(Play{});
 }
 
-SolverThread::~SolverThread() { stop(); }
+SolverThread::~SolverThread() {
+  stop();
+}
 
 void SolverThread::start() {
   if (started_) return;
@@ -55,8 +59,9 @@ void SolverThread::schedule(std::vector<ScheduledCommand> commands) {
     std::lock_guard lock(queueMutex_);
     for (ScheduledCommand& c : commands) scheduled_.push_back(std::move(c));
     // Stable: commands for the same cycle keep their order.
-    std::stable_sort(scheduled_.begin() + static_cast<std::ptrdiff_t>(nextScheduled_), scheduled_.end(),
-                     [](const ScheduledCommand& a, const ScheduledCommand& b) { return a.cycle < b.cycle; });
+    std::stable_sort(
+        scheduled_.begin() + static_cast<std::ptrdiff_t>(nextScheduled_), scheduled_.end(),
+        [](const ScheduledCommand& a, const ScheduledCommand& b) { return a.cycle < b.cycle; });
   }
   wake_.notify_all();
 }
@@ -134,7 +139,8 @@ void SolverThread::applyPending() {
     Command next;
     {
       std::lock_guard lock(queueMutex_);
-      if (nextScheduled_ >= scheduled_.size() || scheduled_[nextScheduled_].cycle > session_->cycle())
+      if (nextScheduled_ >= scheduled_.size() ||
+          scheduled_[nextScheduled_].cycle > session_->cycle())
         break;
       next = scheduled_[nextScheduled_++].command;
     }
@@ -225,7 +231,8 @@ void SolverThread::loop() {
           }
         } else {
           const double wait = (time + period - due) / options_.speed;
-          wakeAt = now + std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double>(wait));
+          wakeAt = now +
+                   std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double>(wait));
         }
       }
     } else {
@@ -268,7 +275,8 @@ void SolverThread::loop() {
     std::unique_lock lock(queueMutex_);
     wake_.wait_until(lock, wakeAt, [this] {
       return stopRequested_ || !pending_.empty() || !jobs_.empty() ||
-             (nextScheduled_ < scheduled_.size() && scheduled_[nextScheduled_].cycle <= session_->cycle());
+             (nextScheduled_ < scheduled_.size() &&
+              scheduled_[nextScheduled_].cycle <= session_->cycle());
     });
   }
   finished_.store(true, std::memory_order_release);

@@ -92,7 +92,8 @@ render::Frame& FrameBuilder::build(const Snapshot& snapshot, const ViewSettings&
   f.torques.clear();
   for (const auto& [v, value] : snapshot.torques) f.torques.push_back({v, value});
   f.markers.clear();
-  if (snapshot.dragVertex >= 0) f.markers.push_back({snapshot.dragVertex, render::Color::hex(0xffd400)});
+  if (snapshot.dragVertex >= 0)
+    f.markers.push_back({snapshot.dragVertex, render::Color::hex(0xffd400)});
   char caption[64];
   std::snprintf(caption, sizeof caption, "t = %.2f s", snapshot.time);
   f.caption = caption;

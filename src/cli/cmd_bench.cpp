@@ -104,15 +104,15 @@ struct ModelBench {
   std::string scheme;
   int threads = 1;
   double period = 0.0;
-  double precompute = 0.0;       // Stepper construction: matrices, caches, work space
-  double systemMatrices = 0.0;   // SystemMatrices alone
-  double transformation = 0.0;   // TransformationMatrices alone (the paper's extra Init)
+  double precompute = 0.0;      // Stepper construction: matrices, caches, work space
+  double systemMatrices = 0.0;  // SystemMatrices alone
+  double transformation = 0.0;  // TransformationMatrices alone (the paper's extra Init)
   double step = 0.0, stepMin = 0.0;
-  double stepSerial = 0.0;       // the same with one thread (when asked)
+  double stepSerial = 0.0;  // the same with one thread (when asked)
   double residentPerVertex = 0.0, peakPerVertex = 0.0, stepperPerVertex = 0.0;
-  double bytesPerStep = 0.0;     // compulsory traffic of the default step (roofline)
+  double bytesPerStep = 0.0;  // compulsory traffic of the default step (roofline)
   long stepsTimed = 0;
-  bool drag = false;  // timed under a load on one vertex
+  bool drag = false;      // timed under a load on one vertex
   int driftProducts = 0;  // products with W in the filtered drift (0: not filtered)
 };
 
@@ -266,7 +266,9 @@ Mesh torusII() {
 
 // ---- output helpers -------------------------------------------------------------------------
 
-std::string num(double v) { return jsonNumber(v); }
+std::string num(double v) {
+  return jsonNumber(v);
+}
 
 std::string modelJson(const ModelBench& b, const std::string& indent) {
   std::ostringstream o;
@@ -291,18 +293,18 @@ std::string modelJson(const ModelBench& b, const std::string& indent) {
 
 void printModelHeader() {
   std::cout << std::left << std::setw(22) << "model" << std::right << std::setw(9) << "V"
-            << std::setw(4) << "thr" << std::setw(12) << "precompute" << std::setw(12)
-            << "step" << std::setw(11) << "steps/s" << std::setw(13) << "vertex-st/s"
-            << std::setw(11) << "peak B/V" << std::setw(10) << "held B/V" << "\n";
+            << std::setw(4) << "thr" << std::setw(12) << "precompute" << std::setw(12) << "step"
+            << std::setw(11) << "steps/s" << std::setw(13) << "vertex-st/s" << std::setw(11)
+            << "peak B/V" << std::setw(10) << "held B/V"
+            << "\n";
 }
 
 void printModelRow(const ModelBench& b) {
   std::cout << std::left << std::setw(22) << b.name << std::right << std::setw(9) << b.vertices
-            << std::setw(4) << b.threads << std::setw(12) << std::setprecision(4)
-            << b.precompute << std::setw(12) << b.step << std::setw(11) << std::setprecision(5)
-            << 1.0 / b.step << std::setw(13) << std::setprecision(4) << b.vertices / b.step
-            << std::setw(11) << std::setprecision(4) << b.peakPerVertex << std::setw(10)
-            << b.residentPerVertex;
+            << std::setw(4) << b.threads << std::setw(12) << std::setprecision(4) << b.precompute
+            << std::setw(12) << b.step << std::setw(11) << std::setprecision(5) << 1.0 / b.step
+            << std::setw(13) << std::setprecision(4) << b.vertices / b.step << std::setw(11)
+            << std::setprecision(4) << b.peakPerVertex << std::setw(10) << b.residentPerVertex;
   if (b.stepSerial > 0.0)
     std::cout << "   (1 thread " << std::setprecision(4) << b.stepSerial << " s, x"
               << std::setprecision(3) << b.stepSerial / b.step << ")";
@@ -329,9 +331,10 @@ std::string runTable1(const Options& o) {
   if (!o.json) {
     std::cout << "Table 1 (paper: Pentium II 450 MHz; ours: medians, this machine)\n"
               << std::left << std::setw(14) << "model" << std::right << std::setw(6) << "V"
-              << std::setw(11) << "Init" << std::setw(11) << "paper" << std::setw(10)
-              << "ratio" << std::setw(11) << "Solv eq.3" << std::setw(11) << "default"
-              << std::setw(9) << "paper" << std::setw(10) << "ratio" << "\n";
+              << std::setw(11) << "Init" << std::setw(11) << "paper" << std::setw(10) << "ratio"
+              << std::setw(11) << "Solv eq.3" << std::setw(11) << "default" << std::setw(9)
+              << "paper" << std::setw(10) << "ratio"
+              << "\n";
   }
   for (int k = 0; k < 4; ++k) {
     const PaperRow& row = kPaper[k];
@@ -341,12 +344,10 @@ std::string runTable1(const Options& o) {
       return uniformModel(std::move(mesh), row.mu, row.kappa, 0.0);
     };
     const double budget = o.quick ? 0.05 : 0.5;
-    const ModelBench paper =
-        benchModel(row.name, build, Scheme::Paper, 0.5, o.threads, o.steps, budget, false, true,
-                   o.driftFilter);
-    const ModelBench ours =
-        benchModel(row.name, build, Scheme::Default, 0.5, o.threads, o.steps, budget, false, false,
-                   o.driftFilter);
+    const ModelBench paper = benchModel(row.name, build, Scheme::Paper, 0.5, o.threads, o.steps,
+                                        budget, false, true, o.driftFilter);
+    const ModelBench ours = benchModel(row.name, build, Scheme::Default, 0.5, o.threads, o.steps,
+                                       budget, false, false, o.driftFilter);
     // The paper's Init: Omega^2, Omega^4, H, H', H'' (section 6), i.e. both matrix sets.
     const double init = paper.systemMatrices + paper.transformation;
     if (o.json) {
@@ -363,11 +364,11 @@ std::string runTable1(const Options& o) {
            << (k < 3 ? ",\n" : "\n");
     } else {
       std::cout << std::left << std::setw(14) << row.name << std::right << std::setw(6)
-                << paper.vertices << std::setw(11) << std::setprecision(3) << init
-                << std::setw(11) << row.init << std::setw(10) << std::setprecision(4)
-                << row.init / init << std::setw(11) << std::setprecision(3) << paper.step
-                << std::setw(11) << ours.step << std::setw(9) << row.solv << std::setw(10)
-                << std::setprecision(4) << row.solv / paper.step << "\n";
+                << paper.vertices << std::setw(11) << std::setprecision(3) << init << std::setw(11)
+                << row.init << std::setw(10) << std::setprecision(4) << row.init / init
+                << std::setw(11) << std::setprecision(3) << paper.step << std::setw(11) << ours.step
+                << std::setw(9) << row.solv << std::setw(10) << std::setprecision(4)
+                << row.solv / paper.step << "\n";
     }
   }
   if (!o.json)
@@ -388,9 +389,8 @@ std::vector<ModelBench> runScaling(const Options& o, std::ostringstream& json) {
       o.quick ? std::vector<Index>{32, 100} : std::vector<Index>{32, 100, 316, 1000};
   std::vector<ModelBench> rows;
   if (!o.json) {
-    std::cout << "Scaling: tori U x U, mu " << mass << ", kappa " << stiffness
-              << ", kappa_theta " << angular << " (radial and angle springs), scheme "
-              << o.scheme << "\n";
+    std::cout << "Scaling: tori U x U, mu " << mass << ", kappa " << stiffness << ", kappa_theta "
+              << angular << " (radial and angle springs), scheme " << o.scheme << "\n";
     printModelHeader();
   }
   json << "  \"scaling\": [\n";
@@ -556,9 +556,8 @@ State peersStart(const Model& model) {
   return start;
 }
 
-std::vector<PeerResult> runPeersOn(const std::string& name, const Model& model,
-                                   const Options& o, double horizon, double interval,
-                                   double budget) {
+std::vector<PeerResult> runPeersOn(const std::string& name, const Model& model, const Options& o,
+                                   double horizon, double interval, double budget) {
   const double target = 1e-3;
   const Points& rest = model.mesh.positions();
   const State start = peersStart(model);
@@ -589,8 +588,8 @@ std::vector<PeerResult> runPeersOn(const std::string& name, const Model& model,
               << (referenceError <= target / 10.0 ? "" : " (NOT converged within the budget)")
               << std::endl;
   std::vector<PeerResult> results;
-  for (Scheme scheme : {Scheme::Default, Scheme::Paper, Scheme::SymplecticEuler,
-                        Scheme::ImplicitEuler}) {
+  for (Scheme scheme :
+       {Scheme::Default, Scheme::Paper, Scheme::SymplecticEuler, Scheme::ImplicitEuler}) {
     PeerResult r;
     r.model = name;
     r.scheme = std::string(schemeName(scheme));
@@ -747,8 +746,7 @@ int runBench(const Options& o) {
     std::function<Model()> build;
     if (o.model.source.empty())
       build = [&o]() {
-        return uniformModel(torusII(), o.model.mass.value_or(0.01),
-                            o.model.stiffness.value_or(9.5),
+        return uniformModel(torusII(), o.model.mass.value_or(0.01), o.model.stiffness.value_or(9.5),
                             o.model.angularStiffness.value_or(0.0));
       };
     else
@@ -766,7 +764,8 @@ int runBench(const Options& o) {
       std::cout << "(precompute: building the stepper (matrices, force caches, work space); "
                    "SystemMatrices alone "
                 << b.systemMatrices << " s";
-      if (b.transformation > 0.0) std::cout << ", TransformationMatrices " << b.transformation << " s";
+      if (b.transformation > 0.0)
+        std::cout << ", TransformationMatrices " << b.transformation << " s";
       std::cout << "; peak B/V: peak resident growth per vertex while loading and stepping; "
                    "held B/V: what stays resident; the stepper's own share "
                 << std::setprecision(4) << b.stepperPerVertex << " B/V)\n";
@@ -805,7 +804,8 @@ void addBenchCommand(CLI::App& root, CommandList& commands) {
             return value > 0.0 && std::isfinite(value) ? "" : "must be a positive, finite number";
           },
           ""));
-  app->add_option("--steps", o->steps, "steps to time (default: about 2 s worth, at least 5 blocks)")
+  app->add_option("--steps", o->steps,
+                  "steps to time (default: about 2 s worth, at least 5 blocks)")
       ->check(CLI::NonNegativeNumber);
   app->add_option("--threads", o->threads, "threads for the step (default: automatic)")
       ->check(CLI::Range(0, kMaxThreads));

@@ -11,7 +11,8 @@
 namespace zsculpt::cli {
 
 void addDemoCommand(CLI::App& root, CommandList& commands) {
-  auto* app = root.add_subcommand("demo", "the main job without a display: the default scene to PNG frames and plots");
+  auto* app = root.add_subcommand(
+      "demo", "the main job without a display: the default scene to PNG frames and plots");
   auto o = std::make_shared<RenderJobOptions>();
   o->out = "zsculpt-demo";
   o->frames = 48;

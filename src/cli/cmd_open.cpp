@@ -83,11 +83,12 @@ app::SessionSetup makeSetup(const OpenOptions& o) {
   const Index n = loaded.model.mesh.numVertices();
   auto vertex = [n](long v, const char* flag) {
     if (v < 0 || v >= n)
-      throw InvalidInputError(std::string(flag) + " " + std::to_string(v) + ": no such vertex (the model has " +
-                              std::to_string(n) + ")");
+      throw InvalidInputError(std::string(flag) + " " + std::to_string(v) +
+                              ": no such vertex (the model has " + std::to_string(n) + ")");
     return static_cast<Index>(v);
   };
-  for (long v : o.pins) scene.constraints.push_back({io::ConstraintType::Position, vertex(v, "--pin"), {}, {}});
+  for (long v : o.pins)
+    scene.constraints.push_back({io::ConstraintType::Position, vertex(v, "--pin"), {}, {}});
   for (long v : o.normalPins)
     scene.constraints.push_back({io::ConstraintType::Normal, vertex(v, "--pin-normal"), {}, {}});
   io::validateScene(scene, loaded.model.mesh);
@@ -133,12 +134,16 @@ void addOpenCommand(CLI::App& root, CommandList& commands) {
       "open", "open the window on a model (no model: the default scene); see docs/user-guide.md");
   auto o = std::make_shared<OpenOptions>();
   o->model.addTo(app, /*sourceOptional=*/true);
-  app->add_option("--scheme", o->run.scheme, "default | paper | exact | symplectic-euler | implicit-euler");
+  app->add_option("--scheme", o->run.scheme,
+                  "default | paper | exact | symplectic-euler | implicit-euler");
   auto* dt = app->add_option("--dt", o->run.dt, "time step, seconds");
-  app->add_option("--dt-ratio", o->run.dtRatio, "time step as a fraction of equation 5's T_max (default 0.5)")
+  app->add_option("--dt-ratio", o->run.dtRatio,
+                  "time step as a fraction of equation 5's T_max (default 0.5)")
       ->excludes(dt);
-  app->add_flag("--allow-unstable", o->run.allowUnstable, "accept a time step above the scheme's stable limit");
-  app->add_option("--perturb", o->perturb, "random initial velocity of this size, zero net momentum");
+  app->add_flag("--allow-unstable", o->run.allowUnstable,
+                "accept a time step above the scheme's stable limit");
+  app->add_option("--perturb", o->perturb,
+                  "random initial velocity of this size, zero net momentum");
   app->add_option("--seed", o->seed, "seed of --perturb, 0 to 4294967295 (default 0)")
       ->check(CLI::Range(0U, 4294967295U));
   app->add_option("--state-in", o->stateIn, "initial state (CSV x,y,z,vx,vy,vz)");
@@ -146,10 +151,14 @@ void addOpenCommand(CLI::App& root, CommandList& commands) {
   app->add_option("--torque", o->torques, "I:TX,TY,TZ[:T0:T1] torque at vertex I (repeatable)");
   app->add_option("--pin", o->pins, "pin vertex I where it is (repeatable)");
   app->add_option("--pin-normal", o->normalPins, "hold the normal at vertex I (repeatable)");
-  app->add_option("--record", o->window.recordPath, "record the session (every command with its cycle) to FILE");
-  app->add_option("--script", o->window.scriptPath, "run a scripted session (a recording, plus \"ui\" lines)");
-  app->add_option("--screenshot-out", o->window.screenshotDir, "folder for screenshots (F12, scripts)");
-  app->add_option("--state-out", o->window.stateOut, "write the final state here when the window closes");
+  app->add_option("--record", o->window.recordPath,
+                  "record the session (every command with its cycle) to FILE");
+  app->add_option("--script", o->window.scriptPath,
+                  "run a scripted session (a recording, plus \"ui\" lines)");
+  app->add_option("--screenshot-out", o->window.screenshotDir,
+                  "folder for screenshots (F12, scripts)");
+  app->add_option("--state-out", o->window.stateOut,
+                  "write the final state here when the window closes");
   app->add_option("--size", o->size, "window size WxH (default 1280x800)");
   app->add_option("--speed", o->window.speed, "simulated seconds per wall second (default 1)");
   app->add_flag("--paused", o->paused, "start paused (Space plays)");

@@ -10,18 +10,21 @@
 namespace zsculpt::cli {
 
 void addRenderCommand(CLI::App& root, CommandList& commands) {
-  auto* app = root.add_subcommand("render", "simulate offscreen (OSMesa) to PNG frames, diagnostics and plots");
+  auto* app = root.add_subcommand(
+      "render", "simulate offscreen (OSMesa) to PNG frames, diagnostics and plots");
   auto o = std::make_shared<RenderJobOptions>();
   o->model.addTo(app);
   o->run.addTo(app);
   app->add_option("--out", o->out, "output folder (created when missing)")->required();
   app->add_option("--frames", o->frames, "frames to write (default 30, spread over the run)");
-  app->add_option("--every", o->every, "steps between frames (with --frames N and no run length: N frames)");
+  app->add_option("--every", o->every,
+                  "steps between frames (with --frames N and no run length: N frames)");
   app->add_option("--size", o->size, "image size WxH (default 1280x720)");
   app->add_option("--property", o->property,
                   "colour the surface by a property: mass, damping, stiffness, angular_stiffness, "
                   "rigidity, rest_length, rest_angle (default: none)");
-  app->add_option("--levels", o->levels, "Doo-Sabin levels of the drawn surface, 0 to 6 (default 2)");
+  app->add_option("--levels", o->levels,
+                  "Doo-Sabin levels of the drawn surface, 0 to 6 (default 2)");
   app->add_flag("!--no-progress", o->progress, "no progress bar on standard error");
   commands.push_back({app, [o]() {
                         const RenderJobResult r = runRenderJob(*o);

@@ -48,7 +48,8 @@ int runReplay(const ReplayOptions& o) {
   options.levels = o.levels;
   const app::Recording recording = app::readRecording(o.recording);
   if (!recording.setup)
-    throw InvalidInputError(o.recording + ": no header line: a script without a model cannot be replayed "
+    throw InvalidInputError(o.recording +
+                            ": no header line: a script without a model cannot be replayed "
                             "(run it with `zsculpt open MESH --script FILE`)");
   const auto start = std::chrono::steady_clock::now();
   app::ReplayResult r;
@@ -57,7 +58,8 @@ int runReplay(const ReplayOptions& o) {
   } catch (const InvalidInputError& e) {
     throw InvalidInputError(o.recording + ": " + e.what());  // which file the command was in
   }
-  const double wall = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  const double wall =
+      std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
   if (options.frames)
     warnAboutOtherFrames(o.out, static_cast<std::size_t>(r.numberedFramesWritten));
   // What the session said, as warnings; a run of the same notice (a model that diverges
@@ -83,8 +85,8 @@ int runReplay(const ReplayOptions& o) {
               << "  \"wall_seconds\": " << jsonNumber(wall) << "\n"
               << "}\n";
   } else {
-    std::cout << "replayed " << r.commands << " commands over " << r.cycles << " cycles (t = "
-              << r.finalState.time << " s) in " << wall << " s\n"
+    std::cout << "replayed " << r.commands << " commands over " << r.cycles
+              << " cycles (t = " << r.finalState.time << " s) in " << wall << " s\n"
               << "final state " << o.out << "/final_state.csv, hash " << hex(r.stateHash);
     if (r.matchesRecording)
       std::cout << (*r.matchesRecording ? ": bit-identical to the recorded session"
@@ -106,9 +108,12 @@ int runReplay(const ReplayOptions& o) {
 void addReplayCommand(CLI::App& root, CommandList& commands) {
   auto* app = root.add_subcommand("replay", "re-run a recorded interactive session headless");
   auto o = std::make_shared<ReplayOptions>();
-  app->add_option("recording", o->recording, "a file written by `zsculpt open --record FILE`")->required();
-  app->add_option("--out", o->out, "output folder: final_state.csv, diagnostics.csv, frames")->required();
-  app->add_option("--every", o->every, "a PNG frame every K cycles (default: only the final frame)");
+  app->add_option("recording", o->recording, "a file written by `zsculpt open --record FILE`")
+      ->required();
+  app->add_option("--out", o->out, "output folder: final_state.csv, diagnostics.csv, frames")
+      ->required();
+  app->add_option("--every", o->every,
+                  "a PNG frame every K cycles (default: only the final frame)");
   app->add_option("--size", o->size, "frame size WxH (default 1280x720)");
   app->add_option("--property", o->property, "colour the surface by this property");
   app->add_option("--levels", o->levels, "subdivision levels of the drawn surface (default 2)");

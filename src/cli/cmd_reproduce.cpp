@@ -18,14 +18,10 @@ namespace {
 const std::vector<std::pair<std::string, std::function<int(const ReproduceOptions&)>>>& targets() {
   static const std::vector<std::pair<std::string, std::function<int(const ReproduceOptions&)>>>
       list = {
-          {"table1", reproduceTable1},
-          {"figure3", reproduceFigure3},
-          {"figure5", reproduceFigure5},
-          {"figure6", reproduceFigure6},
-          {"figure7", reproduceFigure7},
-          {"figure8", reproduceFigure8},
-          {"figure9", reproduceFigure9},
-          {"figure10", reproduceFigure10},
+          {"table1", reproduceTable1},   {"figure3", reproduceFigure3},
+          {"figure5", reproduceFigure5}, {"figure6", reproduceFigure6},
+          {"figure7", reproduceFigure7}, {"figure8", reproduceFigure8},
+          {"figure9", reproduceFigure9}, {"figure10", reproduceFigure10},
       };
   return list;
 }
@@ -33,7 +29,8 @@ const std::vector<std::pair<std::string, std::function<int(const ReproduceOption
 }  // namespace
 
 void addReproduceCommand(CLI::App& root, CommandList& commands) {
-  auto* app = root.add_subcommand("reproduce", "the paper's tables and figures, as data and images");
+  auto* app =
+      root.add_subcommand("reproduce", "the paper's tables and figures, as data and images");
   auto what = std::make_shared<std::string>();
   auto options = std::make_shared<ReproduceOptions>();
   std::string names;

@@ -2,8 +2,8 @@
 
 #include <algorithm>
 #include <chrono>
-#include <filesystem>
 #include <cmath>
+#include <filesystem>
 #include <iostream>
 #include <optional>
 #include <sstream>
@@ -86,7 +86,8 @@ int runSimulate(const SimulateOptions& options) {
     momentumDrift = std::max(momentumDrift, (d.momentum - start.momentum).norm());
     const double l0 = start.angularMomentum.norm();
     if (l0 > 0.0)
-      angularDrift = std::max(angularDrift, (d.angularMomentum - start.angularMomentum).norm() / l0);
+      angularDrift =
+          std::max(angularDrift, (d.angularMomentum - start.angularMomentum).norm() / l0);
   }
   const double wall =
       std::chrono::duration<double>(std::chrono::steady_clock::now() - wallStart).count();
@@ -118,8 +119,7 @@ int runSimulate(const SimulateOptions& options) {
     if (edits.schedule.size() || options.verifyMatrices)
       std::cout << "  \"edits_applied\": " << edits.applied << ",\n";
     if (options.verifyMatrices)
-      std::cout << "  \"matrix_update_max_abs_diff\": " << jsonNumber(edits.maxDifference)
-                << ",\n";
+      std::cout << "  \"matrix_update_max_abs_diff\": " << jsonNumber(edits.maxDifference) << ",\n";
     if (!sim.constraints().empty()) {
       // Momentum the constraints put in (N s): p_end - p_start = loads + gravity + this.
       const Vec3& j = sim.impulses().constraints;

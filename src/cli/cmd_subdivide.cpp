@@ -23,8 +23,7 @@ struct SubdivideOptions {
 
 int runSubdivide(const SubdivideOptions& options) {
   if (options.levels < 0 || options.levels > 8)
-    throw InvalidInputError("--levels: " + std::to_string(options.levels) +
-                            " is outside [0, 8]");
+    throw InvalidInputError("--levels: " + std::to_string(options.levels) + " is outside [0, 8]");
   io::checkMeshOutput(options.out);  // before the work, not after it
   const LoadedModel loaded = options.model.load();
   SubdivisionOptions sub;
@@ -71,8 +70,7 @@ void addSubdivideCommand(CLI::App& root, CommandList& commands) {
   auto options = std::make_shared<SubdivideOptions>();
   options->model.addTo(app);
   app->add_option("--levels", options->levels, "subdivision levels (default 2)");
-  app->add_option("--out", options->out, "output mesh: .obj .ply .stl .gltf .glb .dae")
-      ->required();
+  app->add_option("--out", options->out, "output mesh: .obj .ply .stl .gltf .glb .dae")->required();
   app->add_flag("--classic", options->classic,
                 "classic Doo-Sabin (CGAL's masks), which does not interpolate");
   app->add_flag("--json", options->json, "a JSON summary on standard output");

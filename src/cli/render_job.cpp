@@ -52,8 +52,8 @@ std::vector<long> frameSteps(const RenderJobOptions& o, long& steps, bool explic
   const long n = o.frames.value_or(kDefaultFrames);
   if (n == 1) return {steps};
   for (long f = 0; f < n; ++f) {
-    const long s = static_cast<long>(std::llround(static_cast<double>(f) * static_cast<double>(steps) /
-                                                  static_cast<double>(n - 1)));
+    const long s = static_cast<long>(std::llround(
+        static_cast<double>(f) * static_cast<double>(steps) / static_cast<double>(n - 1)));
     if (at.empty() || s != at.back()) at.push_back(s);
   }
   // A run of fewer steps than frames asked for has a frame per step and no more.
@@ -110,8 +110,9 @@ RenderJobResult runRenderJob(const RenderJobOptions& o) {
 
   const LoadedModel loaded = o.model.load();
   const RunOptions::Resolved resolved = o.run.resolve(loaded);
-  const bool explicitLength = o.run.steps || o.run.time ||
-                              (loaded.scene && (loaded.scene->simulation.steps || loaded.scene->simulation.time));
+  const bool explicitLength =
+      o.run.steps || o.run.time ||
+      (loaded.scene && (loaded.scene->simulation.steps || loaded.scene->simulation.time));
   long steps = resolved.steps;
   const std::vector<long> frameAt = frameSteps(o, steps, explicitLength);
   steps = std::max(steps, frameAt.back());
@@ -246,7 +247,8 @@ RenderJobResult runRenderJob(const RenderJobOptions& o) {
   }
   progress.finish();
 
-  result.diagnostics = o.run.csv.empty() ? (fs::path(o.out) / "diagnostics.csv").string() : o.run.csv;
+  result.diagnostics =
+      o.run.csv.empty() ? (fs::path(o.out) / "diagnostics.csv").string() : o.run.csv;
   io::writeFileAtomically(result.diagnostics, [&](std::ostream& out) { out << csv.str(); });
   result.plot = (fs::path(o.out) / "energy_momentum.png").string();
   render::PlotOptions plotOptions;
@@ -261,7 +263,8 @@ RenderJobResult runRenderJob(const RenderJobOptions& o) {
   return result;
 }
 
-int reportRenderJob(const RenderJobOptions& o, const RenderJobResult& r, const std::string& source) {
+int reportRenderJob(const RenderJobOptions& o, const RenderJobResult& r,
+                    const std::string& source) {
   warnAboutOtherFrames(o.out, r.frames.size());
   if (o.run.json) {
     std::cout << "{\n  \"frames\": [";
@@ -277,7 +280,8 @@ int reportRenderJob(const RenderJobOptions& o, const RenderJobResult& r, const s
               << "  \"dt\": " << jsonNumber(r.period) << ",\n"
               << "  \"t_max\": " << jsonNumber(r.tMax) << ",\n"
               << "  \"diverged\": " << (r.diverged ? "true" : "false") << ",\n"
-              << "  \"diverged_at_step\": " << (r.diverged ? std::to_string(r.divergedAt) : "null") << ",\n"
+              << "  \"diverged_at_step\": " << (r.diverged ? std::to_string(r.divergedAt) : "null")
+              << ",\n"
               << "  \"wall_seconds\": " << jsonNumber(r.wallSeconds) << "\n"
               << "}\n";
   } else {
@@ -288,12 +292,13 @@ int reportRenderJob(const RenderJobOptions& o, const RenderJobResult& r, const s
     }
     std::cout << "\ndiagnostics: " << r.diagnostics << "\nplot: " << r.plot << "\n";
     if (!r.stateOut.empty()) std::cout << "state: " << r.stateOut << "\n";
-    std::cout << r.steps << " steps of " << r.period << " s (" << r.period / r.tMax
-              << " T_max) in " << r.wallSeconds << " s\n";
+    std::cout << r.steps << " steps of " << r.period << " s (" << r.period / r.tMax << " T_max) in "
+              << r.wallSeconds << " s\n";
   }
   if (r.diverged) {
-    std::cerr << "zsculpt: error: " << source << ": the simulation diverged at step " << r.divergedAt
-              << " (" << r.divergence << "); the frames and diagnostics up to it were written"
+    std::cerr << "zsculpt: error: " << source << ": the simulation diverged at step "
+              << r.divergedAt << " (" << r.divergence
+              << "); the frames and diagnostics up to it were written"
               << (r.stateOut.empty() ? "" : ", and the last finite state") << "\n";
     return 3;
   }

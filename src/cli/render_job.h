@@ -19,8 +19,9 @@ struct RenderJobOptions {
   std::optional<long> every;      ///< steps between frames
   std::string size = "1280x720";  ///< WxH
   std::string property;           ///< colour the surface by this property ("" or "none": clay)
-  std::optional<int> levels;      ///< Doo-Sabin levels of the drawn surface (default 2, less for huge meshes)
-  bool progress = true;           ///< a progress bar on standard error when it is a terminal
+  std::optional<int>
+      levels;  ///< Doo-Sabin levels of the drawn surface (default 2, less for huge meshes)
+  bool progress = true;  ///< a progress bar on standard error when it is a terminal
 };
 
 struct RenderJobResult {

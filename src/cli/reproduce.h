@@ -13,7 +13,7 @@
 namespace zsculpt::cli {
 
 struct ReproduceOptions {
-  std::string out;  // output folder (created if missing)
+  std::string out;     // output folder (created if missing)
   bool quick = false;  // smaller runs for tests
 };
 

@@ -99,7 +99,8 @@ int reproduceFigure10(const ReproduceOptions& options) {
   const Phase anticlockwise = runPhase(+1.0);
   const Phase clockwise = runPhase(-1.0);
   double pinError = 0.0;
-  for (Index v : pins) pinError = std::max(pinError, (clockwise.position.row(v) - rest.row(v)).norm());
+  for (Index v : pins)
+    pinError = std::max(pinError, (clockwise.position.row(v) - rest.row(v)).norm());
 
   std::ostringstream csv;
   csv << std::setprecision(12) << "shape,vertex,pinned,torqued,x,y,z\n";
@@ -107,9 +108,9 @@ int reproduceFigure10(const ReproduceOptions& options) {
                                 {"anticlockwise", &anticlockwise.position},
                                 {"clockwise", &clockwise.position}})
     for (Index v = 0; v < mesh.numVertices(); ++v)
-      csv << name << ',' << v << ','
-          << (std::find(pins.begin(), pins.end(), v) != pins.end()) << ',' << (v == centre)
-          << ',' << (*p)(v, 0) << ',' << (*p)(v, 1) << ',' << (*p)(v, 2) << '\n';
+      csv << name << ',' << v << ',' << (std::find(pins.begin(), pins.end(), v) != pins.end())
+          << ',' << (v == centre) << ',' << (*p)(v, 0) << ',' << (*p)(v, 1) << ',' << (*p)(v, 2)
+          << '\n';
 
   auto phaseJson = [](const Phase& p, double sign) {
     nlohmann::ordered_json j;
@@ -158,8 +159,8 @@ int reproduceFigure10(const ReproduceOptions& options) {
   const VectorX restTurn = VectorX::Zero(mesh.numVertices());
   const VectorX anticlockwiseTurn = tangential(anticlockwise.position);
   const VectorX clockwiseTurn = tangential(clockwise.position);
-  const double range = std::max({anticlockwiseTurn.cwiseAbs().maxCoeff(),
-                                 clockwiseTurn.cwiseAbs().maxCoeff(), 1e-9});
+  const double range = std::max(
+      {anticlockwiseTurn.cwiseAbs().maxCoeff(), clockwiseTurn.cwiseAbs().maxCoeff(), 1e-9});
   render::Frame frame;
   frame.mesh = &mesh;
   frame.stencil = &stencil;
@@ -176,7 +177,8 @@ int reproduceFigure10(const ReproduceOptions& options) {
   frame.scalar.values = &restTurn;
   frame.torques.push_back({centre, Vec3(0.0, 0.0, torque)});
   render::frameScene(frame, static_cast<double>(kPanelWidth) / kPanelHeight, 1.45);
-  frame.camera.target.x() += 0.05 * frame.camera.distance;  // clear of the legend (view's right: +x)
+  frame.camera.target.x() +=
+      0.05 * frame.camera.distance;  // clear of the legend (view's right: +x)
   std::vector<render::Image> panels;
   char text[2][96];
   std::snprintf(text[0], sizeof text[0], "+%.1f N m (anticlockwise): ring turns %+.1f deg", torque,

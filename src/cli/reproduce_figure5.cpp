@@ -50,11 +50,10 @@ int reproduceFigure5(const ReproduceOptions& options) {
     const double massError =
         std::abs(stencil.refinedMass(model.properties.mass).sum() - model.properties.mass.sum());
     convergence << level << "," << stencil.numRefinedVertices() << ","
-                << stencil.refinedFaces().rows() << "," << error << "," << error / diagonal
-                << "," << massError << "\n";
+                << stencil.refinedFaces().rows() << "," << error << "," << error / diagonal << ","
+                << massError << "\n";
     std::cout << std::setw(5) << level << std::setw(10) << stencil.numRefinedVertices()
-              << std::setw(7) << stencil.refinedFaces().rows() << "  " << error / diagonal
-              << "\n";
+              << std::setw(7) << stencil.refinedFaces().rows() << "  " << error / diagonal << "\n";
   }
   SubdivisionOptions sub;
   sub.mass = &model.properties.mass;
@@ -68,8 +67,7 @@ int reproduceFigure5(const ReproduceOptions& options) {
   const std::string controlPath = options.out + "/figure5_control.csv";
   io::writeFileAtomically(controlPath, [&](std::ostream& out) { out << points.str(); });
   const std::string convergencePath = options.out + "/figure5_convergence.csv";
-  io::writeFileAtomically(convergencePath,
-                          [&](std::ostream& out) { out << convergence.str(); });
+  io::writeFileAtomically(convergencePath, [&](std::ostream& out) { out << convergence.str(); });
 
   // The image: the original mesh beside the interpolating surface, control vertices in red.
   SubdivisionOptions shown;

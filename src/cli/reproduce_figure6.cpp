@@ -172,7 +172,8 @@ int reproduceFigure6(const ReproduceOptions& options) {
                         : Vec3::UnitX();
   const Vec3 eye = (side + 0.7 * direction + 0.3 * Vec3::UnitZ()).normalized();
   frame.camera.yawDegrees = std::atan2(eye.y(), eye.x()) * 180.0 / std::numbers::pi;
-  frame.camera.pitchDegrees = std::clamp(std::asin(eye.z()) * 180.0 / std::numbers::pi, -80.0, 80.0);
+  frame.camera.pitchDegrees =
+      std::clamp(std::asin(eye.z()) * 180.0 / std::numbers::pi, -80.0, 80.0);
   render::frameScene(frame, static_cast<double>(kPanelWidth) / kPanelHeight, 1.3);
   const Vec3 offset = frame.camera.target - centreOfMass(mass, atReleasePosition);
   const Points& endPosition = sim.state().position;
@@ -187,8 +188,9 @@ int reproduceFigure6(const ReproduceOptions& options) {
   std::snprintf(text[2], sizeof text[2], "t = %.2f s: recoiling, %.2f s after release", sim.time(),
                 sim.time() - atReleaseTime);
   std::vector<render::Image> panels;
-  for (const Instant& instant : {Instant{&rest, true, text[0]}, Instant{&atReleasePosition, true, text[1]},
-                                 Instant{&endPosition, false, text[2]}}) {
+  for (const Instant& instant :
+       {Instant{&rest, true, text[0]}, Instant{&atReleasePosition, true, text[1]},
+        Instant{&endPosition, false, text[2]}}) {
     frame.positions = instant.position;
     frame.forces.clear();
     if (instant.loadOn) frame.forces.push_back({loaded, force * direction});
@@ -201,16 +203,17 @@ int reproduceFigure6(const ReproduceOptions& options) {
 
   std::cout << std::setprecision(4) << "figure 6: dodecahedron (mu 0.5, kappa 5), " << force
             << " N outwards at vertex " << loaded << " for " << release << " s, then released\n"
-            << "  loaded vertex from the centre of mass: rest " << restRadius << ", under load up to "
-            << peakRadius << " (strain " << peakStrain << "), " << releasedRadius
-            << " at release\n"
+            << "  loaded vertex from the centre of mass: rest " << restRadius
+            << ", under load up to " << peakRadius << " (strain " << peakStrain << "), "
+            << releasedRadius << " at release\n"
             << "  after release it recoils between " << minAfter << " and " << maxAfter << " ("
             << finalRadius << " after " << sim.time() - release << " s); energy "
-            << atRelease.total() << " J at release, " << last.total() << " J at the end (no damping)\n"
+            << atRelease.total() << " J at release, " << last.total()
+            << " J at the end (no damping)\n"
             << "  momentum " << last.momentum.norm() << " kg m/s = the load's impulse "
             << force * release << " N s\n"
-            << "wrote " << positionsPath << ", " << energyPath << ", " << jsonPath << ", " << pngPath
-            << "\n";
+            << "wrote " << positionsPath << ", " << energyPath << ", " << jsonPath << ", "
+            << pngPath << "\n";
   return 0;
 }
 

@@ -58,9 +58,8 @@ int reproduceFigure7(const ReproduceOptions& options) {
     const Diagnostics d = sim.diagnostics();
     csv << step << ',' << sim.time() << ',' << d.kinetic << ',' << d.potential.total() << ','
         << d.total() << ',' << d.momentum.x() << ',' << d.momentum.y() << ',' << d.momentum.z()
-        << ',' << d.momentum.norm() << ',' << d.angularMomentum.x() << ','
-        << d.angularMomentum.y() << ',' << d.angularMomentum.z() << ','
-        << d.angularMomentum.norm() << '\n';
+        << ',' << d.momentum.norm() << ',' << d.angularMomentum.x() << ',' << d.angularMomentum.y()
+        << ',' << d.angularMomentum.z() << ',' << d.angularMomentum.norm() << '\n';
     energy.x.push_back(sim.time());
     energy.y.push_back(d.total());
     kinetic.x.push_back(sim.time());
@@ -125,12 +124,13 @@ int reproduceFigure7(const ReproduceOptions& options) {
   json["end_time"] = sim.time();
   io::writeFileAtomically(jsonPath, [&](std::ostream& out) { out << json.dump(2) << '\n'; });
 
-  std::cout << std::setprecision(4) << "figure 7: dodecahedron (mu 0.5, kappa 5), damping 0.04 (gamma "
-            << gamma << " / s), pulls of " << force << " N for " << duration << " s\n";
+  std::cout << std::setprecision(4)
+            << "figure 7: dodecahedron (mu 0.5, kappa 5), damping 0.04 (gamma " << gamma
+            << " / s), pulls of " << force << " N for " << duration << " s\n";
   for (size_t k = 0; k < pulls.size(); ++k)
-    std::cout << "  pull " << k + 1 << " at vertex " << pulls[k].first << ", t = " << pulls[k].second
-              << " s: energy peaks at " << peaks[k] << " J; |p| = " << momentumAfter[k]
-              << " kg m/s before the next\n";
+    std::cout << "  pull " << k + 1 << " at vertex " << pulls[k].first
+              << ", t = " << pulls[k].second << " s: energy peaks at " << peaks[k]
+              << " J; |p| = " << momentumAfter[k] << " kg m/s before the next\n";
   std::cout << "  at t = " << sim.time() << " s: energy " << last.total() << " J, |p| "
             << last.momentum.norm() << " kg m/s (damping takes both down between the spikes)\n"
             << "wrote " << csvPath << ", " << pngPath << ", " << jsonPath << "\n";

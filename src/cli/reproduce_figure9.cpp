@@ -131,18 +131,19 @@ int reproduceFigure9(const ReproduceOptions& options) {
     for (Index v = 0; v < mesh.numVertices(); ++v) {
       const Vec3 n = result->normal.row(v).transpose();
       const double turn = angleBetween(n, restNormals[static_cast<size_t>(v)]);
-      const char* role = isRed(v) ? (result == &two ? "position+normal" : "position")
+      const char* role = isRed(v)      ? (result == &two ? "position+normal" : "position")
                          : v == loaded ? "loaded"
                                        : "";
       csv << name << ',' << v << ',' << role << ',' << result->position(v, 0) << ','
-          << result->position(v, 1) << ',' << result->position(v, 2) << ',' << n.x() << ','
-          << n.y() << ',' << n.z() << ',' << turn << '\n';
+          << result->position(v, 1) << ',' << result->position(v, 2) << ',' << n.x() << ',' << n.y()
+          << ',' << n.z() << ',' << turn << '\n';
       double& worst = result == &one ? turnOne : turnTwo;
       if (isRed(v)) worst = std::max(worst, turn);
     }
   }
   for (Index v : red)
-    between = std::max(between, angleBetween(one.normal.row(v).transpose(), two.normal.row(v).transpose()));
+    between = std::max(between,
+                       angleBetween(one.normal.row(v).transpose(), two.normal.row(v).transpose()));
   loadedMoveOne = (one.position.row(loaded) - rest.row(loaded)).norm();
   loadedMoveTwo = (two.position.row(loaded) - rest.row(loaded)).norm();
 
@@ -155,7 +156,8 @@ int reproduceFigure9(const ReproduceOptions& options) {
     j["max_steps_per_cycle"] = r.report.steps;
     j["max_normal_turn_at_red"] = turn;
     j["loaded_vertex_displacement"] = move;
-    j["constraint_impulse"] = {r.constraintImpulse.x(), r.constraintImpulse.y(), r.constraintImpulse.z()};
+    j["constraint_impulse"] = {r.constraintImpulse.x(), r.constraintImpulse.y(),
+                               r.constraintImpulse.z()};
     return j;
   };
   nlohmann::ordered_json json;

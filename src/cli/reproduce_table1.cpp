@@ -59,7 +59,8 @@ int reproduceTable1(const ReproduceOptions& options) {
   std::cout << std::left << std::setw(14) << "model" << std::right << std::setw(16) << "V,E,F"
             << std::setw(11) << "T_max" << std::setw(8) << "paper" << std::setw(12) << "init"
             << std::setw(9) << "paper" << std::setw(12) << "step" << std::setw(12) << "step(eq3)"
-            << std::setw(9) << "paper" << std::setw(10) << "speedup" << "\n";
+            << std::setw(9) << "paper" << std::setw(10) << "speedup"
+            << "\n";
   const int repeats = options.quick ? 3 : 15;
   for (int k = 0; k < 4; ++k) {
     const PaperRow& row = kPaper[k];
@@ -102,10 +103,10 @@ int reproduceTable1(const ReproduceOptions& options) {
               << row.init << std::setw(12) << stepDefault << std::setw(12) << stepPaper
               << std::setw(9) << row.solv << std::setw(10) << std::setprecision(3)
               << row.solv / stepDefault << "\n";
-    csv << std::setprecision(9) << row.name << "," << m.numVertices() << "," << m.numEdges()
-        << "," << m.numFaces() << "," << row.mu << "," << row.kappa << "," << tMax << ","
-        << tTight << "," << row.stime << "," << init << "," << row.init << "," << stepDefault
-        << "," << stepPaper << "," << row.solv << "," << row.solv / stepDefault << "\n";
+    csv << std::setprecision(9) << row.name << "," << m.numVertices() << "," << m.numEdges() << ","
+        << m.numFaces() << "," << row.mu << "," << row.kappa << "," << tMax << "," << tTight << ","
+        << row.stime << "," << init << "," << row.init << "," << stepDefault << "," << stepPaper
+        << "," << row.solv << "," << row.solv / stepDefault << "\n";
   }
   std::cout << "(times in seconds, medians; paper: Pentium II 450 MHz. T_max is equation 5 "
                "with the row's mu and kappa on every vertex; the paper lists averaged mu and "

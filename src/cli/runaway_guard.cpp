@@ -17,15 +17,14 @@ bool RunawayGuard::afterStep(const Simulation& sim, long k, const Diagnostics& d
   // Work of the loads and of the constraints over this cycle, counted in absolute value: the
   // scale of energy moved in and out.
   inflow_ += std::abs(sim.loadWork()) + std::abs(sim.constraintWork());
-  const double bound =
-      start_ + kFactor * (std::abs(start_) + inflow_) + maxKinetic_ + 1e-12;
+  const double bound = start_ + kFactor * (std::abs(start_) + inflow_) + maxKinetic_ + 1e-12;
   maxKinetic_ = std::max(maxKinetic_, diagnostics.kinetic);
   if (!(energy <= bound)) {
     std::ostringstream msg;
     msg.precision(4);
-    msg << "the energy ran away at step " << k << " (" << energy << " J, more than "
-        << kFactor << " times the start energy " << start_ << " J plus the work put in, "
-        << inflow_ << " J, plus the largest kinetic energy before it)";
+    msg << "the energy ran away at step " << k << " (" << energy << " J, more than " << kFactor
+        << " times the start energy " << start_ << " J plus the work put in, " << inflow_
+        << " J, plus the largest kinetic energy before it)";
     reason_ = msg.str();
     return false;
   }

@@ -55,7 +55,9 @@ class GuardedRun {
   /// The diagnostics after the last successful step.
   [[nodiscard]] const Diagnostics& diagnostics() const { return diagnostics_; }
   [[nodiscard]] const std::string& why() const { return why_; }
-  [[nodiscard]] const State& lastGood() const { return runaway_ ? guard_.checkpoint() : sim_.state(); }
+  [[nodiscard]] const State& lastGood() const {
+    return runaway_ ? guard_.checkpoint() : sim_.state();
+  }
 
  private:
   void tellWarnings();

@@ -30,10 +30,10 @@ void TimedEdits::beforeStep(Simulation& sim) {
     sim.propertiesChanged(result.matrixRows);  // local, even for global edits
     energyChange += std::abs(sim.diagnostics().total() - energyBefore);
     if (verify)
-      maxDifference = std::max(
-          maxDifference, editing::verifyAgainstRebuild(sim.model(), sim.stepper().system(),
-                                                       sim.stepper().transformation())
-                             .maxAbs());
+      maxDifference =
+          std::max(maxDifference, editing::verifyAgainstRebuild(sim.model(), sim.stepper().system(),
+                                                                sim.stepper().transformation())
+                                      .maxAbs());
   }
 }
 

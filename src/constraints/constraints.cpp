@@ -60,8 +60,7 @@ void normalFitVertices(const Mesh& mesh, Index vertex, std::vector<Index>& out) 
 }
 
 std::optional<Vec3> bestPlaneNormal(const Mesh& mesh, const Points& position, Index vertex) {
-  if (vertex < 0 || vertex >= mesh.numVertices() || mesh.valence(vertex) < 2)
-    return std::nullopt;
+  if (vertex < 0 || vertex >= mesh.numVertices() || mesh.valence(vertex) < 2) return std::nullopt;
   std::vector<Vec3> points;
   points.push_back(position.row(vertex).transpose());
   for (Index w : mesh.vertexNeighbors(vertex)) points.push_back(position.row(w).transpose());
@@ -110,7 +109,9 @@ std::size_t ConstraintSet::indexOf(Index id) const {
   return static_cast<std::size_t>(it - items_.begin());
 }
 
-const Constraint& ConstraintSet::get(Index id) const { return items_[indexOf(id)]; }
+const Constraint& ConstraintSet::get(Index id) const {
+  return items_[indexOf(id)];
+}
 
 std::optional<Index> ConstraintSet::find(ConstraintKind kind, Index vertex) const {
   for (const Constraint& c : items_)
@@ -181,10 +182,10 @@ Index ConstraintSet::addNormal(const Mesh& mesh, const Points& position, Index v
   if (!normal.allFinite() || !(normal.stableNorm() > 0.0))
     throw InvalidInputError(what + ": the normal must be a finite, non-zero vector");
   const Index valence = mesh.valence(vertex);
-  if (valence == 0)
-    throw InvalidInputError(what + ": an isolated vertex has no normal");
+  if (valence == 0) throw InvalidInputError(what + ": an isolated vertex has no normal");
   if (valence == 1)
-    throw InvalidInputError(what + ": a vertex with a single neighbour (a curve end) has no normal");
+    throw InvalidInputError(what +
+                            ": a vertex with a single neighbour (a curve end) has no normal");
   if (!bestPlaneNormal(mesh, position, vertex))
     throw InvalidInputError(what + ": no plane fits the vertex and its neighbours (collinear)");
   // Judged on the mesh as loaded, not on the current shape: a ring folded for the moment is

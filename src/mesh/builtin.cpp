@@ -151,7 +151,9 @@ Mesh makeFins() {
   return Mesh(std::move(positions), faces);
 }
 
-bool isBuiltinName(std::string_view name) { return name.starts_with("builtin:"); }
+bool isBuiltinName(std::string_view name) {
+  return name.starts_with("builtin:");
+}
 
 namespace {
 
@@ -194,7 +196,8 @@ Mesh makeBuiltin(std::string_view name) {
   if (model == "fins" && args == 0) return makeFins();
   if (model == "torus") {
     if (args == 0) return makeTorus(10, 10);
-    if (args == 2) return makeTorus(parseCount(name, parts[1], 4096), parseCount(name, parts[2], 4096));
+    if (args == 2)
+      return makeTorus(parseCount(name, parts[1], 4096), parseCount(name, parts[2], 4096));
     throw bad();
   }
   if (model == "grid") {

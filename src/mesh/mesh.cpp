@@ -49,8 +49,8 @@ Mesh::Mesh(Points positions, const std::vector<std::vector<Index>>& faces,
     for (size_t k = 0; k < face.size(); ++k) {
       if (face[k] < 0 || face[k] >= n)
         throw TopologyError("face " + std::to_string(f) + " refers to vertex " +
-                            std::to_string(face[k]) + ", out of range [0, " +
-                            std::to_string(n) + ")");
+                            std::to_string(face[k]) + ", out of range [0, " + std::to_string(n) +
+                            ")");
       for (size_t l = 0; l < k; ++l) {
         if (face[l] == face[k])
           throw TopologyError("face " + std::to_string(f) + " repeats vertex " +
@@ -101,8 +101,7 @@ Mesh::Mesh(Points positions, const std::vector<std::vector<Index>>& faces,
   // A face listing the same edge twice (possible only with >= 4 corners revisiting a
   // pair) is kept once per incidence; edgeFaces keeps unique faces.
   std::sort(edgeFacePairs.begin(), edgeFacePairs.end());
-  edgeFacePairs.erase(std::unique(edgeFacePairs.begin(), edgeFacePairs.end()),
-                      edgeFacePairs.end());
+  edgeFacePairs.erase(std::unique(edgeFacePairs.begin(), edgeFacePairs.end()), edgeFacePairs.end());
   edgeFaces_ = buildCsr(numEdges(), edgeFacePairs);
 
   std::vector<std::pair<Index, Index>> vertexEdgePairs;

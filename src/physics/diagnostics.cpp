@@ -95,7 +95,8 @@ void randomVelocity(const VectorX& mass, double amplitude, unsigned seed, Points
   auto uniform = [&]() { return (static_cast<double>(rng() >> 11) + 0.5) * 0x1.0p-53; };
   for (Index i = 0; i < n; ++i)
     for (int c = 0; c < 3; ++c)
-      velocity(i, c) = std::sqrt(-2.0 * std::log(uniform())) * std::cos(6.283185307179586 * uniform());
+      velocity(i, c) =
+          std::sqrt(-2.0 * std::log(uniform())) * std::cos(6.283185307179586 * uniform());
   Eigen::RowVector3d momentum = Eigen::RowVector3d::Zero();
   for (Index i = 0; i < n; ++i) momentum += mass[i] * velocity.row(i);
   const Eigen::RowVector3d drift = momentum / mass.sum();

@@ -506,8 +506,8 @@ template <bool kEnergy>
     double* __restrict energy) {
 #pragma omp simd
   for (Index j = 0; j < count; ++j) {
-    radialArm<kEnergy>(j, ax[j], ay[j], az[j], length[j], edgeKappa[edge[j]],
-                       restLength[edge[j]], ax, ay, az, il, gx, gy, gz, energy);
+    radialArm<kEnergy>(j, ax[j], ay[j], az[j], length[j], edgeKappa[edge[j]], restLength[edge[j]],
+                       ax, ay, az, il, gx, gy, gz, energy);
   }
 }
 
@@ -531,16 +531,15 @@ ZSCULPT_KERNEL void radialBatch(Index count, const Index* __restrict edge,
 // u (inverse length iu) and w (iw) are beta iu (w - cos u) and beta iw (u - cos w), the
 // gradient form of angleSpringForce. (A macro: structs or arrays in the loop body keep GCC
 // from vectorising it.)
-#define ZSCULPT_ANGLE_FORCE(beta, c, ux, uy, uz, iu, wx, wy, wz, iw, FA0, FA1, FA2, FB0, FB1, \
-                            FB2)                                                           \
-  do {                                                                                     \
-    const double sa_ = (beta) * (iu), sb_ = (beta) * (iw);                                 \
-    FA0 = sa_ * ((wx) - (c) * (ux));                                                      \
-    FA1 = sa_ * ((wy) - (c) * (uy));                                                      \
-    FA2 = sa_ * ((wz) - (c) * (uz));                                                      \
-    FB0 = sb_ * ((ux) - (c) * (wx));                                                      \
-    FB1 = sb_ * ((uy) - (c) * (wy));                                                      \
-    FB2 = sb_ * ((uz) - (c) * (wz));                                                      \
+#define ZSCULPT_ANGLE_FORCE(beta, c, ux, uy, uz, iu, wx, wy, wz, iw, FA0, FA1, FA2, FB0, FB1, FB2) \
+  do {                                                                                             \
+    const double sa_ = (beta) * (iu), sb_ = (beta) * (iw);                                         \
+    FA0 = sa_ * ((wx) - (c) * (ux));                                                               \
+    FA1 = sa_ * ((wy) - (c) * (uy));                                                               \
+    FA2 = sa_ * ((wz) - (c) * (uz));                                                               \
+    FB0 = sb_ * ((ux) - (c) * (wx));                                                               \
+    FB1 = sb_ * ((uy) - (c) * (wy));                                                               \
+    FB2 = sb_ * ((uz) - (c) * (wz));                                                               \
   } while (0)
 
 // radialRows for a chunk without angle springs: the arms stay as they are.
@@ -770,8 +769,8 @@ template <bool kEnergy>
       const double ux = r[3 * w] - r[3 * v], uy = r[3 * w + 1] - r[3 * v + 1],
                    uz = r[3 * w + 2] - r[3 * v + 2];
       const double l = std::sqrt(ux * ux + uy * uy + uz * uz);
-      radialArm<kEnergy>(j, ux, uy, uz, l, edgeKappa[edge[j]], restLength[edge[j]], ax, ay, az,
-                         il, gx, gy, gz, energy);
+      radialArm<kEnergy>(j, ux, uy, uz, l, edgeKappa[edge[j]], restLength[edge[j]], ax, ay, az, il,
+                         gx, gy, gz, energy);
     }
   }
 }
@@ -891,7 +890,8 @@ ForceKernel::ForceKernel(const Model& model, int maxThreads) {
   haloStart_.assign(1, 0);
   size_t maxAccumulator = 0;
   for (Index b = 0; b < blocks; ++b) {
-    const Index v0 = blockStart_[static_cast<size_t>(b)], v1 = blockStart_[static_cast<size_t>(b) + 1];
+    const Index v0 = blockStart_[static_cast<size_t>(b)],
+                v1 = blockStart_[static_cast<size_t>(b) + 1];
     list.clear();
     for (Index h = off[v0]; h < off[v1]; ++h) {
       const Index w = nbr[h];
@@ -927,7 +927,8 @@ ForceKernel::ForceKernel(const Model& model, int maxThreads) {
   incomingBlock_.resize(incoming.size());
   size_t k = 0;
   for (Index b = 0; b < blocks; ++b) {
-    const Index v0 = blockStart_[static_cast<size_t>(b)], v1 = blockStart_[static_cast<size_t>(b) + 1];
+    const Index v0 = blockStart_[static_cast<size_t>(b)],
+                v1 = blockStart_[static_cast<size_t>(b) + 1];
     for (; k < incoming.size() && incoming[k][0] < v1; ++k) {
       incomingRow_[k] = incoming[k][0] - v0;
       incomingHalo_[k] = incoming[k][1];
@@ -944,7 +945,8 @@ ForceKernel::ForceKernel(const Model& model, int maxThreads) {
   chunkDegree_.clear();
   size_t maxArms = 0, maxAngles = 0;
   for (Index b = 0; b < blocks; ++b) {
-    const Index v0 = blockStart_[static_cast<size_t>(b)], v1 = blockStart_[static_cast<size_t>(b) + 1];
+    const Index v0 = blockStart_[static_cast<size_t>(b)],
+                v1 = blockStart_[static_cast<size_t>(b) + 1];
     for (Index c0 = v0; c0 < v1; c0 += chunkVertices_) {
       const Index c1 = std::min(c0 + chunkVertices_, v1);
       const Index degree = off[c0 + 1] - off[c0];
@@ -954,8 +956,9 @@ ForceKernel::ForceKernel(const Model& model, int maxThreads) {
       chunkDegree_.push_back(uniform ? degree : 0);
       maxArms = std::max(maxArms, static_cast<size_t>(off[c1] - off[c0]));
       if (!reference_)
-        maxAngles = std::max(maxAngles, static_cast<size_t>(angles.vertexOffsets[static_cast<size_t>(c1)] -
-                                                            angles.vertexOffsets[static_cast<size_t>(c0)]));
+        maxAngles =
+            std::max(maxAngles, static_cast<size_t>(angles.vertexOffsets[static_cast<size_t>(c1)] -
+                                                    angles.vertexOffsets[static_cast<size_t>(c0)]));
     }
     blockChunk_.push_back(static_cast<Index>(chunkStart_.size()));
   }

@@ -168,7 +168,9 @@ void SystemMatrices::computeRow(const Model& model, Index v) {
   oValues[pos] = diagonal * inverseMass_[v];
 }
 
-double SystemMatrices::gamma() const { return g_.size() ? g_.minCoeff() : 0.0; }
+double SystemMatrices::gamma() const {
+  return g_.size() ? g_.minCoeff() : 0.0;
+}
 
 double criticalPeriod(const SystemMatrices& matrices) {
   const VectorX diagonal = matrices.omega2().diagonal();
@@ -350,8 +352,7 @@ double maxAbsDifference(const SparseRowMatrix& a, const SparseRowMatrix& b) {
   ZSCULPT_ASSERT(a.rows() == b.rows() && a.cols() == b.cols(), "matrix sizes differ");
   const SparseRowMatrix d = a - b;
   double largest = 0.0;
-  for (Index k = 0; k < d.nonZeros(); ++k)
-    largest = std::max(largest, std::abs(d.valuePtr()[k]));
+  for (Index k = 0; k < d.nonZeros(); ++k) largest = std::max(largest, std::abs(d.valuePtr()[k]));
   return largest;
 }
 

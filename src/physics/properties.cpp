@@ -12,13 +12,20 @@ namespace zsculpt {
 
 std::string_view propertyUnit(Property property) {
   switch (property) {
-    case Property::Mass: return "kg";
-    case Property::Damping: return "kg/s";
-    case Property::Stiffness: return "N/m";
-    case Property::AngularStiffness: return "N m/rad^2";
-    case Property::Rigidity: return "";
-    case Property::RestLength: return "m";
-    case Property::RestAngle: return "rad";
+    case Property::Mass:
+      return "kg";
+    case Property::Damping:
+      return "kg/s";
+    case Property::Stiffness:
+      return "N/m";
+    case Property::AngularStiffness:
+      return "N m/rad^2";
+    case Property::Rigidity:
+      return "";
+    case Property::RestLength:
+      return "m";
+    case Property::RestAngle:
+      return "rad";
   }
   return "";
 }
@@ -32,13 +39,20 @@ std::string propertyLabel(Property property) {
 
 std::string_view propertyName(Property property) {
   switch (property) {
-    case Property::Mass: return "mass";
-    case Property::Damping: return "damping";
-    case Property::Stiffness: return "stiffness";
-    case Property::AngularStiffness: return "angular_stiffness";
-    case Property::Rigidity: return "rigidity";
-    case Property::RestLength: return "rest_length";
-    case Property::RestAngle: return "rest_angle";
+    case Property::Mass:
+      return "mass";
+    case Property::Damping:
+      return "damping";
+    case Property::Stiffness:
+      return "stiffness";
+    case Property::AngularStiffness:
+      return "angular_stiffness";
+    case Property::Rigidity:
+      return "rigidity";
+    case Property::RestLength:
+      return "rest_length";
+    case Property::RestAngle:
+      return "rest_angle";
   }
   return "?";
 }
@@ -56,19 +70,26 @@ Property propertyFromName(std::string_view name) {
 
 PropertyDomain propertyDomain(Property property) {
   switch (property) {
-    case Property::RestLength: return PropertyDomain::Edge;
-    case Property::RestAngle: return PropertyDomain::Angle;
-    default: return PropertyDomain::Vertex;
+    case Property::RestLength:
+      return PropertyDomain::Edge;
+    case Property::RestAngle:
+      return PropertyDomain::Angle;
+    default:
+      return PropertyDomain::Vertex;
   }
 }
 
 PropertyRange propertyRange(Property property) {
   constexpr double inf = std::numeric_limits<double>::infinity();
   switch (property) {
-    case Property::Mass: return {0.0, inf, true};
-    case Property::Rigidity: return {0.0, 1.0, false};
-    case Property::RestAngle: return {0.0, std::numbers::pi, false};
-    default: return {0.0, inf, false};
+    case Property::Mass:
+      return {0.0, inf, true};
+    case Property::Rigidity:
+      return {0.0, 1.0, false};
+    case Property::RestAngle:
+      return {0.0, std::numbers::pi, false};
+    default:
+      return {0.0, inf, false};
   }
 }
 
@@ -136,9 +157,8 @@ void PhysicalProperties::validate(const Mesh& mesh, const AngleTable& angles) co
   for (Property property : kAllProperties) {
     const VectorX& v = values(property);
     const Index expected = propertyDomain(property) == PropertyDomain::Vertex ? n
-                           : propertyDomain(property) == PropertyDomain::Edge
-                               ? mesh.numEdges()
-                               : angles.size();
+                           : propertyDomain(property) == PropertyDomain::Edge ? mesh.numEdges()
+                                                                              : angles.size();
     if (v.size() != expected)
       throw InvalidInputError(std::string(propertyName(property)) + " has " +
                               std::to_string(v.size()) + " values, expected " +
@@ -154,20 +174,26 @@ void PhysicalProperties::validate(const Mesh& mesh, const AngleTable& angles) co
     }
   }
   if (!(stiffnessCap > 0.0))
-    throw InvalidInputError("stiffness cap " + std::to_string(stiffnessCap) +
-                            " must be positive");
+    throw InvalidInputError("stiffness cap " + std::to_string(stiffnessCap) + " must be positive");
   if (!gravity.allFinite()) throw InvalidInputError("gravity is not finite");
 }
 
 const VectorX& PhysicalProperties::values(Property property) const {
   switch (property) {
-    case Property::Mass: return mass;
-    case Property::Damping: return damping;
-    case Property::Stiffness: return stiffness;
-    case Property::AngularStiffness: return angularStiffness;
-    case Property::Rigidity: return rigidity;
-    case Property::RestLength: return restLength;
-    case Property::RestAngle: return restAngle;
+    case Property::Mass:
+      return mass;
+    case Property::Damping:
+      return damping;
+    case Property::Stiffness:
+      return stiffness;
+    case Property::AngularStiffness:
+      return angularStiffness;
+    case Property::Rigidity:
+      return rigidity;
+    case Property::RestLength:
+      return restLength;
+    case Property::RestAngle:
+      return restAngle;
   }
   return mass;
 }
@@ -177,14 +203,12 @@ VectorX& PhysicalProperties::values(Property property) {
 }
 
 const VectorX& PhysicalProperties::vertexValues(Property property) const {
-  ZSCULPT_ASSERT(propertyDomain(property) == PropertyDomain::Vertex,
-                 "not a per-vertex property");
+  ZSCULPT_ASSERT(propertyDomain(property) == PropertyDomain::Vertex, "not a per-vertex property");
   return values(property);
 }
 
 VectorX& PhysicalProperties::vertexValues(Property property) {
-  ZSCULPT_ASSERT(propertyDomain(property) == PropertyDomain::Vertex,
-                 "not a per-vertex property");
+  ZSCULPT_ASSERT(propertyDomain(property) == PropertyDomain::Vertex, "not a per-vertex property");
   return values(property);
 }
 

@@ -265,7 +265,7 @@ void Stepper::setPeriod(double period) {
   period_ = period;
   refreshDamping({});
   if (options_.driftFilter) chooseDriftFit();
-  kickValid_ = false;  // the cached kick is (T/2) Phi a for the old period
+  kickValid_ = false;        // the cached kick is (T/2) Phi a for the old period
   if (begun_) invalidate();  // the state is at the begun step's end
 }
 

@@ -65,8 +65,7 @@ MassProperties massProperties(const VectorX& mass, const Points& position, int t
   return p;
 }
 
-Mat3 uniformShellInertia(const Mesh& mesh, const Points& position, double totalMass,
-                         Vec3* centre) {
+Mat3 uniformShellInertia(const Mesh& mesh, const Points& position, double totalMass, Vec3* centre) {
   // Triangle (a, b, c) of area A: integral of x dA = A (a + b + c) / 3 and
   // integral of x x^T dA = A / 12 (a a^T + b b^T + c c^T + s s^T), s = a + b + c.
   double area = 0.0;
@@ -82,7 +81,8 @@ Mat3 uniformShellInertia(const Mesh& mesh, const Points& position, double totalM
       const Vec3 s = a + b + c;
       area += t;
       first += t / 3.0 * s;
-      second += t / 12.0 * (a * a.transpose() + b * b.transpose() + c * c.transpose() + s * s.transpose());
+      second += t / 12.0 *
+                (a * a.transpose() + b * b.transpose() + c * c.transpose() + s * s.transpose());
     }
   }
   if (!(area > 0.0)) {
@@ -182,8 +182,8 @@ RigidMomentum momentumOf(const VectorX& mass, const Points& position, const Poin
   return m;
 }
 
-RigidDrift rigidDrift(const MassProperties& start, const RigidMomentum& momentum,
-                      const Vec3& force, const Vec3& torque, double dt, double damping) {
+RigidDrift rigidDrift(const MassProperties& start, const RigidMomentum& momentum, const Vec3& force,
+                      const Vec3& torque, double dt, double damping) {
   RigidDrift d;
   // Damping -rho v of the rigid velocity field, exact for damping proportional to mass.
   const double decay = damping != 0.0 ? std::exp(-damping * dt) : 1.0;
@@ -194,8 +194,8 @@ RigidDrift rigidDrift(const MassProperties& start, const RigidMomentum& momentum
   return d;
 }
 
-RigidMomentum rigidKick(const RigidMomentum& half, const Vec3& force, const Vec3& torque,
-                        double dt, double damping) {
+RigidMomentum rigidKick(const RigidMomentum& half, const Vec3& force, const Vec3& torque, double dt,
+                        double damping) {
   const double decay = damping != 0.0 ? std::exp(-damping * dt) : 1.0;
   RigidMomentum m;
   m.linear = decay * (half.linear + (0.5 * dt) * force);

@@ -1,10 +1,10 @@
 #include "zsculpt/simulation/simulation.h"
 
 #include <algorithm>
-#include <iterator>
 #include <array>
 #include <cmath>
 #include <cstdint>
+#include <iterator>
 #include <optional>
 #include <string>
 
@@ -101,8 +101,10 @@ void Simulation::setState(const State& state) {
   if (!state.position.allFinite() || !state.velocity.allFinite())
     throw InvalidInputError("state contains a non-finite value");
   state_ = state;
-  if (rigidActive_) splitVelocity();
-  else rigidMomentum_ = RigidMomentum{};
+  if (rigidActive_)
+    splitVelocity();
+  else
+    rigidMomentum_ = RigidMomentum{};
   lastGood_ = state_;
   baseForceValid_ = false;
   solver_.forgetTurning();  // the normals' turning was towards where the last state was
@@ -140,8 +142,10 @@ void Simulation::propertiesChanged(std::span<const Index> vertices) {
   endRateValid_ = false;
   const bool wasActive = rigidActive_;
   updateRigidity();
-  if (rigidActive_) splitVelocity();
-  else if (wasActive) rigidMomentum_ = RigidMomentum{};  // state_.velocity is already total
+  if (rigidActive_)
+    splitVelocity();
+  else if (wasActive)
+    rigidMomentum_ = RigidMomentum{};  // state_.velocity is already total
 }
 
 void Simulation::allPropertiesChanged() {
@@ -151,8 +155,10 @@ void Simulation::allPropertiesChanged() {
   endRateValid_ = false;
   const bool wasActive = rigidActive_;
   updateRigidity();
-  if (rigidActive_) splitVelocity();
-  else if (wasActive) rigidMomentum_ = RigidMomentum{};
+  if (rigidActive_)
+    splitVelocity();
+  else if (wasActive)
+    rigidMomentum_ = RigidMomentum{};
 }
 
 // ---- loads ----------------------------------------------------------------------------------
@@ -282,7 +288,7 @@ void Simulation::gatherLoads(double t, const Points& position, Points& out,
 
 Index Simulation::addPositionConstraint(Index vertex, std::optional<Vec3> target) {
   const bool exists = vertex >= 0 && vertex < model_.mesh.numVertices();
-  const Vec3 where = target ? *target
+  const Vec3 where = target   ? *target
                      : exists ? Vec3(state_.position.row(vertex).transpose())
                               : Vec3::Zero();
   return constraints_.addPosition(model_.mesh, vertex, where);
@@ -291,7 +297,8 @@ Index Simulation::addPositionConstraint(Index vertex, std::optional<Vec3> target
 Index Simulation::addNormalConstraint(Index vertex, std::optional<Vec3> normal) {
   // Without a normal: the current one (addNormal reports where there is none).
   const Vec3 direction =
-      normal ? *normal : bestPlaneNormal(model_.mesh, state_.position, vertex).value_or(Vec3::UnitZ());
+      normal ? *normal
+             : bestPlaneNormal(model_.mesh, state_.position, vertex).value_or(Vec3::UnitZ());
   const Index id = constraints_.addNormal(model_.mesh, state_.position, vertex, direction);
   // Without angle springs the ring folds freely, and where it folds through a shape with no
   // flattest direction its plane, hence the normal, is undefined: the constraint lets go
@@ -319,7 +326,9 @@ void Simulation::setConstraintNormal(Index id, const Vec3& normal) {
   constraints_.setNormal(id, normal);
 }
 
-void Simulation::removeConstraint(Index id) { constraints_.remove(id); }
+void Simulation::removeConstraint(Index id) {
+  constraints_.remove(id);
+}
 
 void Simulation::clearConstraints() {
   constraints_.clear();
@@ -683,7 +692,8 @@ void Simulation::finishRigid() {
     const Points& all = solver_.forces();
     const Points& couples = solver_.coupleForces();
     for (size_t a = 0; a < support.size(); ++a)
-      totalForce_.row(support[a]) += all.row(static_cast<Index>(a)) - couples.row(static_cast<Index>(a));
+      totalForce_.row(support[a]) +=
+          all.row(static_cast<Index>(a)) - couples.row(static_cast<Index>(a));
   }
   Vec3 force, torque;
   weightedResultant(chi_, trial_.position, totalForce_, end_.centre, force, torque,
@@ -719,8 +729,9 @@ void Simulation::finishRigid() {
       const auto support = solver_.support();
       for (size_t a = 0; a < support.size(); ++a) {
         const Index v = support[a];
-        startTorque += (elasticStart_.position.row(v).transpose() - start_.centre)
-                           .cross(sigma_[static_cast<size_t>(v)] * constraintForce_.row(v).transpose());
+        startTorque +=
+            (elasticStart_.position.row(v).transpose() - start_.centre)
+                .cross(sigma_[static_cast<size_t>(v)] * constraintForce_.row(v).transpose());
       }
     }
     rigidMomentum_.linear += moved.linear;
@@ -909,9 +920,9 @@ void Simulation::coupledStep() {
       // the velocity correction adds or removes.
       const Eigen::RowVector3d before = state_.velocity.row(v);
       const Eigen::RowVector3d after = before + velocityDelta_.row(static_cast<Index>(a));
-      constraintWork_ +=
-          constraintForce_.row(v).dot(state_.position.row(v) - supportStart_.row(static_cast<Index>(a))) +
-          0.5 * mass[v] * (after.squaredNorm() - before.squaredNorm());
+      constraintWork_ += constraintForce_.row(v).dot(state_.position.row(v) -
+                                                     supportStart_.row(static_cast<Index>(a))) +
+                         0.5 * mass[v] * (after.squaredNorm() - before.squaredNorm());
       state_.velocity.row(v) += velocityDelta_.row(static_cast<Index>(a));
       if (rigidActive_) deformation_.row(v) += velocityDelta_.row(static_cast<Index>(a));
     }
@@ -954,7 +965,8 @@ void Simulation::addToLedger(const Vec3& centreHint, const Points& velocityDelta
     // second half kick is taken back in velocityDelta, counted below), the rigid body got
     // its first half kick.
     const Index v = support[a];
-    const double share = rigidActive_ ? sigma_[static_cast<size_t>(v)] + 0.5 * chi_[static_cast<size_t>(v)] : 1.0;
+    const double share =
+        rigidActive_ ? sigma_[static_cast<size_t>(v)] + 0.5 * chi_[static_cast<size_t>(v)] : 1.0;
     const Vec3 couple = solver_.coupleForces().row(static_cast<Index>(a)).transpose();
     const Vec3 f = Vec3(constraintForce_.row(v).transpose()) - couple + share * couple;
     ledger_.constraints += t * f;
@@ -964,7 +976,8 @@ void Simulation::addToLedger(const Vec3& centreHint, const Points& velocityDelta
     const Index v = support[a];
     const Vec3 kick = mass[v] * velocityDelta.row(static_cast<Index>(a)).transpose();
     ledger_.constraints += kick;
-    ledger_.constraintsAngular += (Vec3(state_.position.row(v).transpose()) - endCentre).cross(kick);
+    ledger_.constraintsAngular +=
+        (Vec3(state_.position.row(v).transpose()) - endCentre).cross(kick);
   }
 }
 

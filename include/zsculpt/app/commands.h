@@ -100,10 +100,9 @@ struct DragEnd {};
 /// Marks the session as saved (no unsaved edits) - sent after a successful save.
 struct MarkSaved {};
 
-using Command = std::variant<Play, Pause, StepOnce, Reset, SetTimeStep, SetGravity,
-                             SetStiffnessCap, Edit, AddLoad, ClearLoads, Pin, Unpin, PinBrush,
-                             UnpinAll, PinNormal, UnpinNormal, DragStart, DragMove, DragEnd,
-                             MarkSaved>;
+using Command = std::variant<Play, Pause, StepOnce, Reset, SetTimeStep, SetGravity, SetStiffnessCap,
+                             Edit, AddLoad, ClearLoads, Pin, Unpin, PinBrush, UnpinAll, PinNormal,
+                             UnpinNormal, DragStart, DragMove, DragEnd, MarkSaved>;
 
 /// The command's "type" in recordings: "play", "dab", "drag_move", ...
 std::string_view commandName(const Command& command);

@@ -4,9 +4,8 @@
 // and the plane a dragged vertex moves in. Plain geometry, no GL: the window and the tests
 // use the same functions.
 
-#include <optional>
-
 #include <Eigen/Core>
+#include <optional>
 
 #include "zsculpt/core/types.h"
 #include "zsculpt/render/camera.h"
@@ -28,11 +27,11 @@ std::optional<Eigen::Vector2d> projectToPixel(const render::Camera& camera, int 
 double worldPerPixel(const render::Camera& camera, int height, const Vec3& point);
 
 struct SurfaceHit {
-  Index face = -1;               ///< the polygon hit
-  Vec3 point = Vec3::Zero();     ///< on the surface
-  double distance = 0.0;         ///< along the ray
-  Index nearestCorner = -1;      ///< the polygon's corner closest to the point
-  Vec3 normal = Vec3::UnitZ();   ///< unit normal of the triangle hit (facing the ray's origin)
+  Index face = -1;              ///< the polygon hit
+  Vec3 point = Vec3::Zero();    ///< on the surface
+  double distance = 0.0;        ///< along the ray
+  Index nearestCorner = -1;     ///< the polygon's corner closest to the point
+  Vec3 normal = Vec3::UnitZ();  ///< unit normal of the triangle hit (facing the ray's origin)
 };
 
 /// The first polygon of `faces` (positions: one row per vertex) the ray hits, from either

@@ -82,14 +82,14 @@ struct Snapshot {
   bool running = false;
   Scheme scheme = Scheme::Default;
   double period = 0.0;
-  double tMax = 0.0;          ///< equation 5 for the current properties
+  double tMax = 0.0;  ///< equation 5 for the current properties
   /// The scheme's stable period: Gershgorin's bound, or, for a period above it set by the
   /// user, the tight limit (largest eigenvalue) that `zsculpt simulate` gives.
   double stableLimit = 0.0;
   /// stableLimit is the tight limit, or the period is within the bound; false: the period is
   /// above the bound after an edit, and may still be stable.
   bool stableLimitTight = true;
-  int substeps = 1;           ///< steps in the last cycle (split when the motion is fast)
+  int substeps = 1;  ///< steps in the last cycle (split when the motion is fast)
   Vec3 gravity = Vec3::Zero();
   double stiffnessCap = 0.0;
   double meanDamping = 0.0;

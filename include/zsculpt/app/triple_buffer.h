@@ -34,8 +34,8 @@ class TripleBuffer {
   T& back() { return slots_[back_]; }
   /// Makes back() the newest value and hands the writer another slot.
   void publish() {
-    const std::uint8_t previous = middle_.exchange(static_cast<std::uint8_t>(back_ | kFresh),
-                                                   std::memory_order_acq_rel);
+    const std::uint8_t previous =
+        middle_.exchange(static_cast<std::uint8_t>(back_ | kFresh), std::memory_order_acq_rel);
     back_ = previous & kIndexMask;
   }
 

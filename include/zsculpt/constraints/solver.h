@@ -51,15 +51,16 @@ class StepResponse {
 
   /// The rigid component of this step, or none (positions are then the elastic ones).
   struct Rigid {
-    MassProperties start;    // at the start of the step
-    RigidMomentum momentum;  // at the start of the step
+    MassProperties start;        // at the start of the step
+    RigidMomentum momentum;      // at the start of the step
     Vec3 force = Vec3::Zero();   // sum chi_i F_i without virtual forces
     Vec3 torque = Vec3::Zero();  // about start.centre
     double damping = 0.0;
     double period = 0.0;
   };
   /// `startPosition` and `rigidShare` (chi) of the support vertices, |S| rows.
-  void setRigid(const Rigid& rigid, const Points& startPosition, std::span<const double> rigidShare);
+  void setRigid(const Rigid& rigid, const Points& startPosition,
+                std::span<const double> rigidShare);
   void clearRigid() { rigidActive_ = false; }
 
   /// Anchors the affine elastic model at a computed step: the support's positions after the
@@ -82,9 +83,9 @@ class StepResponse {
  private:
   void rigidMotion(const Points& force, Vec3& centre, RigidDrift& drift) const;
 
-  Eigen::MatrixXd elastic_;  // |S| x |S|
+  Eigen::MatrixXd elastic_;         // |S| x |S|
   Eigen::MatrixXd elasticInverse_;  // its pseudo-inverse, for pins-only solves
-  VectorX centreShift_;      // d (centre after the elastic step) / d f_l, times total mass
+  VectorX centreShift_;             // d (centre after the elastic step) / d f_l, times total mass
   double totalMass_ = 0.0;
   Points anchorPosition_, anchorForce_, start_;
   Vec3 anchorCentre_ = Vec3::Zero();
@@ -96,15 +97,15 @@ class StepResponse {
 
 /// How well the constraints held in the last step (of a split cycle: its last step).
 struct ConstraintReport {
-  int steps = 0;                // elastic steps computed for this cycle (1 = no correction)
-  double positionError = 0.0;   // largest distance of a pinned vertex from its target
-  double normalError = 0.0;     // largest angle (rad) of a held normal from its cycle's goal
-  int released = 0;             // normal constraints let go this cycle (ConstraintSolver::held)
-  int yielded = 0;              // held normals let go to hold the pins (yieldPlanes)
-  int turning = 0;              // held normals whose cycle goal falls short of their target
-  int stopped = 0;              // normals stopped short of their target (kTurnBudget), held or let go
-  double targetError = 0.0;     // largest angle (rad) of a held normal from its target
-  bool converged = true;        // both within tolerance
+  int steps = 0;               // elastic steps computed for this cycle (1 = no correction)
+  double positionError = 0.0;  // largest distance of a pinned vertex from its target
+  double normalError = 0.0;    // largest angle (rad) of a held normal from its cycle's goal
+  int released = 0;            // normal constraints let go this cycle (ConstraintSolver::held)
+  int yielded = 0;             // held normals let go to hold the pins (yieldPlanes)
+  int turning = 0;             // held normals whose cycle goal falls short of their target
+  int stopped = 0;           // normals stopped short of their target (kTurnBudget), held or let go
+  double targetError = 0.0;  // largest angle (rad) of a held normal from its target
+  bool converged = true;     // both within tolerance
 };
 
 class ConstraintSolver {
@@ -230,11 +231,11 @@ class ConstraintSolver {
     // virtual forces are gradient_k lambda.
     std::vector<Eigen::Matrix<double, 3, 2>> gradient;
     Eigen::Matrix<double, 3, 2> across = Eigen::Matrix<double, 3, 2>::Zero();  // _|_ target
-    Vec3 hint = Vec3::UnitZ();    // the oriented normal at the start of the step
-    bool held = true;             // the ring defines its normal at the start of the step
-    bool yielded = false;         // held, then let go for the pins (yieldPlanes)
-    Vec3 goal = Vec3::UnitZ();    // the normal at the end of the step: the target, or short of it
-    TurnRecord turn;              // its constraint's, carried over set-ups
+    Vec3 hint = Vec3::UnitZ();  // the oriented normal at the start of the step
+    bool held = true;           // the ring defines its normal at the start of the step
+    bool yielded = false;       // held, then let go for the pins (yieldPlanes)
+    Vec3 goal = Vec3::UnitZ();  // the normal at the end of the step: the target, or short of it
+    TurnRecord turn;            // its constraint's, carried over set-ups
   };
   void assembleForces();
   Vec3 planeNormal(const Plane& plane, const Points& supportPosition) const;
@@ -276,7 +277,7 @@ class ConstraintSolver {
   VectorX markedUnknowns_;
   std::vector<char> savedHeld_;
   std::vector<std::vector<Eigen::Matrix<double, 3, 2>>> savedGradient_;
-  Points planeMotion_;         // |S| x 3, for planesWithinReach
+  Points planeMotion_;  // |S| x 3, for planesWithinReach
   Eigen::MatrixXd jacobian_;
   Eigen::CompleteOrthogonalDecomposition<Eigen::MatrixXd> factor_;
   VectorX rhs_, step_, base_, trial_, shifted_, initial_;

@@ -52,9 +52,9 @@ class DivergenceError : public SolverError {
 
 /// Throws InvalidInputError with the file and line when a condition that callers must
 /// guarantee does not hold (geometry-central style). Used for API misuse, not user input.
-#define ZSCULPT_ASSERT(cond, msg)                                                          \
-  do {                                                                                     \
-    if (!(cond))                                                                           \
-      throw ::zsculpt::InvalidInputError(std::string(__FILE__) + ":" +                     \
-                                         std::to_string(__LINE__) + ": " + (msg));         \
+#define ZSCULPT_ASSERT(cond, msg)                                                                 \
+  do {                                                                                            \
+    if (!(cond))                                                                                  \
+      throw ::zsculpt::InvalidInputError(std::string(__FILE__) + ":" + std::to_string(__LINE__) + \
+                                         ": " + (msg));                                           \
   } while (0)

@@ -36,8 +36,7 @@ namespace zsculpt {
 void randomVelocity(const VectorX& mass, double amplitude, unsigned seed, Points& velocity);
 
 /// A rigid spin: v_i = omega x (r_i - centre of mass).
-void spinVelocity(const VectorX& mass, const Points& position, const Vec3& omega,
-                  Points& velocity);
+void spinVelocity(const VectorX& mass, const Points& position, const Vec3& omega, Points& velocity);
 
 /// A sculptor's poke: velocity `speed` along `direction` at vertex `centre`, falling off as
 /// exp(-d^2 / (2 width^2)) with the rest distance d from it, less the mean (zero net

@@ -64,8 +64,7 @@ struct PotentialEnergy {
 /// Adds the internal (radial and angle spring) forces at `position` to `force` and returns
 /// their potential energy. Radial stiffness of edge (i, j) is edgeStiffness(kappa_i,
 /// kappa_j); angle stiffness is the centre vertex's kappa_theta. No allocation.
-PotentialEnergy accumulateInternalForces(const Model& model, const Points& position,
-                                         Points& force);
+PotentialEnergy accumulateInternalForces(const Model& model, const Points& position, Points& force);
 
 /// Adds gravity mu_i g to `force`; returns the gravitational potential -sum mu_i g . r_i.
 double accumulateGravity(const PhysicalProperties& properties, const Points& position,

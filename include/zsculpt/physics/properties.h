@@ -84,12 +84,12 @@ AngleTable buildAngleTable(const Mesh& mesh);
 
 /// Uniform values a bare mesh starts with (command-line model flags override them).
 struct UniformProperties {
-  double mass = 0.5;               // kg per vertex (Table 1, dodecahedron)
-  double damping = 0.0;            // kg/s
-  double stiffness = 5.0;          // N/m (Table 1, dodecahedron)
-  double angularStiffness = 0.0;   // N m / rad^2
-  double rigidity = 0.0;           // chi in [0, 1]
-  double restLengthScale = 1.0;    // rest length = scale * length as loaded
+  double mass = 0.5;              // kg per vertex (Table 1, dodecahedron)
+  double damping = 0.0;           // kg/s
+  double stiffness = 5.0;         // N/m (Table 1, dodecahedron)
+  double angularStiffness = 0.0;  // N m / rad^2
+  double rigidity = 0.0;          // chi in [0, 1]
+  double restLengthScale = 1.0;   // rest length = scale * length as loaded
   /// kappa_0 of section 4.3; infinity disables the automatic rigidity.
   double stiffnessCap = std::numeric_limits<double>::infinity();
   Vec3 gravity = Vec3::Zero();
@@ -133,7 +133,9 @@ inline double elasticShare(double kappa, double cap) {
 
 /// The stiffness the solver's matrices see at a vertex: kappa_i capped at kappa_0
 /// (section 4.3: "the critical sampling time depends on kappa_0").
-inline double cappedStiffness(double kappa, double cap) { return kappa > cap ? cap : kappa; }
+inline double cappedStiffness(double kappa, double cap) {
+  return kappa > cap ? cap : kappa;
+}
 
 /// Rigidity actually used at vertex i: the larger of the painted chi_i and the automatic
 /// 1 - sigma_i from the stiffness cap (section 4.3).

@@ -87,13 +87,13 @@ struct RigidDrift {
   Vec3 translation = Vec3::Zero();
   Mat3 rotation = Mat3::Identity();
 };
-RigidDrift rigidDrift(const MassProperties& start, const RigidMomentum& momentum,
-                      const Vec3& force, const Vec3& torque, double dt, double damping);
+RigidDrift rigidDrift(const MassProperties& start, const RigidMomentum& momentum, const Vec3& force,
+                      const Vec3& torque, double dt, double damping);
 
 /// The second half: a half kick by the forces at the end of the drift, then damping over
 /// dt/2.
-RigidMomentum rigidKick(const RigidMomentum& half, const Vec3& force, const Vec3& torque,
-                        double dt, double damping);
+RigidMomentum rigidKick(const RigidMomentum& half, const Vec3& force, const Vec3& torque, double dt,
+                        double damping);
 
 /// r_i <- pivot + translation + rotation (r_i - pivot), for every row.
 void applyRigidMotion(const Vec3& pivot, const Vec3& translation, const Mat3& rotation,

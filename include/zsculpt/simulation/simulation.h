@@ -272,9 +272,9 @@ class Simulation {
   // (set by a cycle without rigid motion; cleared by anything that moves the state or may
   // change a property).
   bool energyAtState_ = false;
-  Points totalForce_, loadForce_;  // work buffers
+  Points totalForce_, loadForce_;     // work buffers
   std::vector<Index> loadForceRows_;  // loadForce_'s rows that can be nonzero, as externalRows_
-  double scale_ = 1.0;             // max(1, size of the model): tolerances are relative to it
+  double scale_ = 1.0;                // max(1, size of the model): tolerances are relative to it
   Vec3 startRigidForce_ = Vec3::Zero(), startRigidTorque_ = Vec3::Zero();
   Vec3 startElasticTorque_ = Vec3::Zero();
   RigidDrift drift_;
