@@ -11,6 +11,7 @@
 #include <fstream>
 #include <map>
 #include <nlohmann/json.hpp>
+#include <set>
 #include <sstream>
 #include <string>
 
@@ -442,15 +443,19 @@ TEST_F(Cli, ReproduceFigure3FindsThePapersThreshold) {
   std::istringstream lines(t);
   std::string line;
   std::getline(lines, line);
+  std::set<std::string> found;
   while (std::getline(lines, line)) {
     const std::string scheme = line.substr(0, line.find(','));
     const double ratio = std::stod(line.substr(line.find(',') + 1));
+    found.insert(scheme);
     if (scheme == "paper") {
       EXPECT_NEAR(ratio, 1.08, 0.01);  // Figure 3: 1.080
     } else if (scheme == "default") {
       EXPECT_NEAR(ratio, 1.0705, 0.005);  // x = 12 at lambda_0
     }
   }
+  // Both rows are there (an empty table passed the loop above).
+  EXPECT_TRUE(found.count("paper") && found.count("default")) << t;
 }
 
 namespace {
