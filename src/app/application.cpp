@@ -11,7 +11,9 @@
 #include <filesystem>
 #include <fstream>
 #include <iostream>
+#include <map>
 #include <utility>
+#include <vector>
 
 #define GLFW_INCLUDE_NONE
 #include <GLFW/glfw3.h>
@@ -866,14 +868,45 @@ void Window::loadScript(const std::string& path) {
     const std::string where = path + ": line " + std::to_string(line);
     if (!j.at("ui").is_string()) throw InvalidInputError(where + ": ui: expected an action name");
     const std::string action = j.at("ui").get<std::string>();
-    static const char* known[] = {"wait_frames", "wait_cycle", "wait_time",  "wait_applied",
-                                  "command",     "tool",       "brush",      "display",
-                                  "camera",      "mouse_down", "mouse_move", "mouse_up",
-                                  "screenshot",  "probe",      "save_scene", "save_mesh",
-                                  "quit",        "frame",      "key",        "scroll"};
-    if (std::find_if(std::begin(known), std::end(known),
-                     [&](const char* k) { return action == k; }) == std::end(known))
-      throw InvalidInputError(where + ": ui: unknown action \"" + action + "\"");
+    // Each action and its members: a misspelt member ("at_vertx") is refused, not ignored.
+    static const std::map<std::string, std::vector<std::string>> members = {
+        {"wait_frames", {"frames"}},
+        {"wait_cycle", {"cycle"}},
+        {"wait_time", {"time"}},
+        {"wait_applied", {}},
+        {"command", {"command"}},
+        {"tool", {"tool", "pin_by_brush"}},
+        {"brush", {"property", "mode", "value", "strength", "radius", "falloff"}},
+        {"display", {"property", "colour_map", "levels", "range", "wireframe", "points"}},
+        {"camera", {"yaw", "pitch", "zoom", "frame"}},
+        {"frame", {}},
+        {"mouse_down", {"at_vertex", "at", "offset", "button", "ctrl", "shift", "alt"}},
+        {"mouse_move", {"at_vertex", "at", "offset", "button", "ctrl", "shift", "alt"}},
+        {"mouse_up", {"at_vertex", "at", "offset", "button", "ctrl", "shift", "alt"}},
+        {"key", {"key", "ctrl", "shift"}},
+        {"scroll", {"clicks", "at_vertex", "at", "offset"}},
+        {"screenshot", {"name", "what"}},
+        {"probe", {"vertex", "name"}},
+        {"save_scene", {"path"}},
+        {"save_mesh", {"path"}},
+        {"quit", {}}};
+    const auto known = members.find(action);
+    if (known == members.end()) {
+      std::string valid;
+      for (const auto& [name, unused] : members) valid += (valid.empty() ? "" : ", ") + name;
+      throw InvalidInputError(where + ": ui: unknown action \"" + action + "\" (valid: " + valid +
+                              ")");
+    }
+    for (const auto& [member, unused] : j.items()) {
+      if (member == "ui") continue;
+      const auto& allowed = known->second;
+      if (std::find(allowed.begin(), allowed.end(), member) == allowed.end()) {
+        std::string valid;
+        for (const auto& m : allowed) valid += (valid.empty() ? "" : ", ") + m;
+        throw InvalidInputError(where + ": " + action + ": unknown member \"" + member +
+                                "\" (valid: " + (valid.empty() ? "none" : valid) + ")");
+      }
+    }
     if (action == "command") commandFromJson(j.at("command"), where + ": command");
     if (action == "tool") toolFromName(j.value("tool", std::string()));
     if (action == "key") {
