@@ -247,13 +247,28 @@ TEST_F(Cli, BadInputGetsOneLineAndExitTwoAndNoOutputFile) {
                      "--mass");
   EXPECT_FALSE(fs::exists(path("s.csv")));
   expectOneLineError(run("simulate builtin:grid --rigidity 2"), 2, "--rigidity");
-  expectOneLineError(run("simulate builtin:grid --scheme rk4"), 2, "rk4");
+  expectOneLineError(run("simulate builtin:grid --scheme rk4"), 2,
+                     "--scheme: unknown scheme 'rk4'");
+  expectOneLineError(run("bench builtin:grid --scheme rk4"), 2, "--scheme: unknown scheme 'rk4'");
+  expectOneLineError(run("simulate builtin:grid --force a:0,0,1"), 2,
+                     "--force a:0,0,1: 'a' is not a vertex index");
+  expectOneLineError(run("simulate builtin:grid --pin 1.5"), 2,
+                     "--pin 1.5: '1.5' is not a vertex index");
+  expectOneLineError(run("bench --steps -1"), 2, "--steps: must be a whole number of steps");
   expectOneLineError(run("simulate builtin:grid --force 9999:0,0,1"), 2, "9999");
   expectOneLineError(run("simulate builtin:grid --force 3:0,zero,1"), 2, "--force");
   expectOneLineError(run("simulate builtin:grid --dt 0"), 2, "--dt");
   expectOneLineError(run("simulate builtin:grid --steps 5 --csv /dev/null/dir/d.csv"), 2,
                      "/dev/null/dir");
   expectOneLineError(run("simulate builtin:grid --nonsense"), 2, "--nonsense");
+  // Standard output that cannot be written (a full disk) is an error, not a silent exit 0.
+  const int full = std::system((std::string(ZSCULPT_BINARY) +
+                                " simulate builtin:dodecahedron --steps 2 --json > /dev/full 2> " +
+                                path("full.txt"))
+                                   .c_str());
+  ASSERT_TRUE(WIFEXITED(full));
+  EXPECT_EQ(WEXITSTATUS(full), 2);
+  EXPECT_EQ(slurp(path("full.txt")), "zsculpt: error: standard output: No space left on device\n");
   std::ofstream(path("bad_state.csv")) << "x,y,z,vx,vy,vz\n1,2,3,4,5\n";
   expectOneLineError(run("simulate builtin:dodecahedron --state-in " + path("bad_state.csv")), 2,
                      "bad_state.csv");

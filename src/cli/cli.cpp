@@ -1,7 +1,9 @@
 #include "zsculpt/cli/cli.h"
 
 #include <CLI/CLI.hpp>
+#include <cerrno>
 #include <charconv>
+#include <cstring>
 #include <iostream>
 #include <string>
 
@@ -81,14 +83,24 @@ int run(int argc, char** argv) {
     std::cerr << "zsculpt: error: " << oneLine(e.what()) << "\n";
     return 2;
   }
+  // What went to standard output must have arrived: a full disk or a closed pipe under
+  // `--json > file` is an error, not a silent success with a truncated file.
+  auto delivered = [](int status) {
+    errno = 0;
+    std::cout.flush();
+    if (std::cout.good()) return status;
+    std::cerr << "zsculpt: error: standard output: "
+              << (errno != 0 ? std::strerror(errno) : "the write failed") << "\n";
+    return status == 0 ? 2 : status;
+  };
   try {
     for (const Command& command : commands)
-      if (command.app->parsed()) return command.action();
+      if (command.app->parsed()) return delivered(command.action());
     // No subcommand: the window on the default scene (the open command's default).
     for (const Command& command : commands)
-      if (command.app->get_name() == "open") return command.action();
+      if (command.app->get_name() == "open") return delivered(command.action());
     std::cout << app.help();
-    return 0;
+    return delivered(0);
   } catch (const DivergenceError& e) {
     std::cerr << "zsculpt: error: " << oneLine(e.what()) << "\n";
     return 3;

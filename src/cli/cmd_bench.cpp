@@ -398,7 +398,7 @@ std::vector<ModelBench> runScaling(const Options& o, std::ostringstream& json) {
     const Index u = sides[k];
     const std::string name = "torus " + std::to_string(u) + "x" + std::to_string(u);
     auto build = [=]() { return uniformModel(makeTorus(u, u), mass, stiffness, angular); };
-    const ModelBench b = benchModel(name, build, schemeFromName(o.scheme), o.dtRatio, o.threads,
+    const ModelBench b = benchModel(name, build, schemeOption(o.scheme), o.dtRatio, o.threads,
                                     o.steps, o.quick ? 0.2 : 2.0, true, false, o.driftFilter);
     rows.push_back(b);
     if (!o.json) printModelRow(b);
@@ -741,7 +741,7 @@ int runBench(const Options& o) {
   if (!o.json)
     std::cout << "(load average " << loadAverage() << "; times are medians of repeats)\n";
   if (!o.model.source.empty() || !anySection) {
-    const Scheme scheme = schemeFromName(o.scheme);
+    const Scheme scheme = schemeOption(o.scheme);
     std::string name = o.model.source.empty() ? "Torus-II" : o.model.source;
     std::function<Model()> build;
     if (o.model.source.empty())
@@ -806,7 +806,12 @@ void addBenchCommand(CLI::App& root, CommandList& commands) {
           ""));
   app->add_option("--steps", o->steps,
                   "steps to time (default: about 2 s worth, at least 5 blocks)")
-      ->check(CLI::NonNegativeNumber);
+      ->check(CLI::Validator(
+          [](std::string& text) -> std::string {
+            const double value = std::strtod(text.c_str(), nullptr);
+            return value >= 0.0 ? "" : "must be a whole number of steps, 0 or more";
+          },
+          ""));
   app->add_option("--threads", o->threads, "threads for the step (default: automatic)")
       ->check(CLI::Range(0, kMaxThreads));
   app->add_flag("--json", o->json, "a JSON summary on standard output");

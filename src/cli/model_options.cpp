@@ -125,6 +125,16 @@ double parseNumber(std::string_view text, const std::string& what) {
   return value;
 }
 
+/// A vertex index: a whole number from 0 (the text before a load's or a pin's colon).
+Index parseVertexIndex(const std::string& text, const std::string& what) {
+  double vertex = 0.0;
+  const auto [ptr, ec] = std::from_chars(text.data(), text.data() + text.size(), vertex);
+  if (ec != std::errc() || ptr != text.data() + text.size() || !std::isfinite(vertex) ||
+      vertex != std::floor(vertex) || vertex < 0 || vertex > 2e9)
+    throw InvalidInputError(what + ": '" + text + "' is not a vertex index");
+  return static_cast<Index>(vertex);
+}
+
 }  // namespace
 
 void checkDistinctOutputs(
@@ -158,6 +168,14 @@ void warnAboutOtherFrames(const std::string& dir, std::size_t written) {
               << " (an earlier run's: clear the folder to keep only these)\n";
 }
 
+Scheme schemeOption(const std::string& name) {
+  try {
+    return schemeFromName(name);
+  } catch (const InvalidInputError& e) {
+    throw InvalidInputError(std::string("--scheme: ") + e.what());
+  }
+}
+
 Property propertyOption(const std::string& name) {
   try {
     return propertyFromName(name);
@@ -176,10 +194,7 @@ TimedLoad parseTimedLoad(const std::string& text, const std::string& flag) {
   if ((parts.size() != 2 && parts.size() != 4) || text.back() == ':')
     throw InvalidInputError(what + ": expected I:X,Y,Z or I:X,Y,Z:T0:T1");
   TimedLoad load;
-  const double vertex = parseNumber(parts[0], what);
-  if (vertex != std::floor(vertex) || vertex < 0 || vertex > 2e9)
-    throw InvalidInputError(what + ": '" + parts[0] + "' is not a vertex index");
-  load.vertex = static_cast<Index>(vertex);
+  load.vertex = parseVertexIndex(parts[0], what);
   std::vector<std::string> xyz;
   std::stringstream v(parts[1]);
   while (std::getline(v, part, ',')) xyz.push_back(part);
@@ -200,11 +215,7 @@ VertexVector parseVertexVector(const std::string& text, const std::string& flag)
   const std::string what = flag + " " + text;
   const auto colon = text.find(':');
   VertexVector out;
-  const std::string index = text.substr(0, colon);
-  const double vertex = parseNumber(index, what);
-  if (vertex != std::floor(vertex) || vertex < 0 || vertex > 2e9)
-    throw InvalidInputError(what + ": '" + index + "' is not a vertex index");
-  out.vertex = static_cast<Index>(vertex);
+  out.vertex = parseVertexIndex(text.substr(0, colon), what);
   if (colon == std::string::npos) return out;
   std::vector<std::string> xyz;
   std::stringstream in(text.substr(colon + 1));
@@ -222,7 +233,7 @@ RunOptions::Resolved RunOptions::resolve(const LoadedModel& loaded) const {
   Resolved r;
   const io::SimulationSettings* fromScene = loaded.scene ? &loaded.scene->simulation : nullptr;
   if (!scheme.empty())
-    r.settings.scheme = schemeFromName(scheme);
+    r.settings.scheme = schemeOption(scheme);
   else if (fromScene)
     r.settings.scheme = schemeFromName(io::schemeName(fromScene->scheme));
   // NaN, infinities and 1e400 (read as infinity) are refused here, not replaced below.

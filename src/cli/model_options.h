@@ -91,6 +91,9 @@ void warnAboutOtherFrames(const std::string& dir, std::size_t written);
 /// A property's name given to --property: its Property, or InvalidInputError "--property: ...".
 Property propertyOption(const std::string& name);
 
+/// The scheme --scheme NAME names; an unknown one is an error naming the flag.
+Scheme schemeOption(const std::string& name);
+
 /// A JSON number that stays valid JSON for infinities (as null).
 std::string jsonNumber(double value);
 
