@@ -5,6 +5,7 @@
 #include <sys/stat.h>
 #include <sys/wait.h>
 
+#include <Eigen/Core>
 #include <cmath>
 #include <cstdlib>
 #include <filesystem>
@@ -489,11 +490,63 @@ double coverage(const zsculpt::render::Image& image) {
   return static_cast<double>(covered) / (static_cast<double>(image.width) * image.height);
 }
 
+/// The centroid of the pin markers' pixels (Style::pin, red) and how many there are.
+Eigen::Vector3d pinPixels(const zsculpt::render::Image& image) {
+  Eigen::Vector3d sum = Eigen::Vector3d::Zero();
+  for (int y = 0; y < image.height; ++y)
+    for (int x = 0; x < image.width; ++x) {
+      const std::uint8_t* p = image.pixel(x, y);
+      if (p[0] > 180 && p[1] < 100 && p[2] < 90) sum += Eigen::Vector3d(x, y, 1.0);
+    }
+  return sum.z() > 0 ? Eigen::Vector3d(sum.x() / sum.z(), sum.y() / sum.z(), sum.z()) : sum;
+}
+
+/// Whether the model reaches the image's edge: a pixel of the top or bottom row unlike the
+/// rest of its row (the background is a vertical gradient), or a left pixel unlike the right
+/// one of its row.
+bool reachesTheEdge(const zsculpt::render::Image& image) {
+  auto differ = [](const std::uint8_t* a, const std::uint8_t* b) {
+    return std::abs(a[0] - b[0]) + std::abs(a[1] - b[1]) + std::abs(a[2] - b[2]) > 24;
+  };
+  for (int y : {0, image.height - 1})
+    for (int x = 1; x < image.width; ++x)
+      if (differ(image.pixel(x, y), image.pixel(0, y))) return true;
+  for (int y = 0; y < image.height; ++y)
+    if (differ(image.pixel(0, y), image.pixel(image.width - 1, y))) return true;
+  return false;
+}
+
 long lineCount(const std::string& text) {
   return std::count(text.begin(), text.end(), '\n');
 }
 
 }  // namespace
+
+TEST_F(Cli, RenderWatchesAPinnedModelFromAFixedPointAndBacksAwayToKeepItInView) {
+  // Pinned corners, the centre pushed down: the camera no longer follows the centre of mass,
+  // so the pins stay on the same pixels (they moved by 11 to 13 px in 8 s of the README's
+  // example, and looked loose).
+  ASSERT_EQ(run("render builtin:grid --pin 0 --pin 17 --pin 306 --pin 323 --force 170:0,0,-0.5 "
+                "--time 3 --frames 3 --size 320x180 --out " +
+                path("pinned"))
+                .status,
+            0);
+  const Eigen::Vector3d first = pinPixels(zsculpt::render::readPng(path("pinned/frame_0000.png")));
+  const Eigen::Vector3d last = pinPixels(zsculpt::render::readPng(path("pinned/frame_0002.png")));
+  ASSERT_GT(first.z(), 5.0);
+  EXPECT_EQ(first, last);
+  // The same sheet under gravity sags hundreds of metres: the camera backs away, and the
+  // last frame still holds the whole model (it was cut at the top and bottom).
+  ASSERT_EQ(run("render builtin:grid --pin 0 --pin 17 --pin 306 --pin 323 --gravity 0,0,-9.81 "
+                "--time 10 --frames 3 --size 320x180 --out " +
+                path("sagging"))
+                .status,
+            0);
+  const auto sagging = zsculpt::render::readPng(path("sagging/frame_0002.png"));
+  EXPECT_FALSE(reachesTheEdge(sagging));
+  EXPECT_GT(coverage(sagging), 0.001);
+  EXPECT_FALSE(reachesTheEdge(zsculpt::render::readPng(path("sagging/frame_0000.png"))));
+}
 
 TEST_F(Cli, RenderWritesFramesOfTheAskedSizeAPlotAndTheDiagnostics) {
   const Result r = run("render builtin:torus --out " + path("out") +

@@ -457,6 +457,25 @@ TEST(Offscreen, ScalarFieldUsesTheColourMapAndTheLegendShowsItsEnds) {
   EXPECT_GT(changedPixels(offscreen().render(frame, 480, 320), noLegend), 5000);
 }
 
+TEST(Offscreen, AUniformFieldsLegendIsOneSwatchNotAScale) {
+  // A property with one value everywhere (a uniform stiffness, or a zero damping) was drawn
+  // with a scale from 0.95 to 1.05 times it (or -1 to 1 about a zero): values that are
+  // nowhere on the model. Its legend is one swatch of the map's middle colour.
+  const Mesh mesh = makeTorus();
+  Frame frame = frameFor(mesh, -55, 35, 480, 320);
+  for (double value : {5.0, 0.0}) {
+    const VectorX uniform = VectorX::Constant(mesh.numVertices(), value);
+    frame.scalar.values = &uniform;
+    frame.scalar.name = "stiffness (N/m)";
+    frame.display.legend = true;
+    const Image image = offscreen().render(frame, 480, 320);
+    const Color middle = sampleColorMap(ColorMap::Viridis, 0.5);
+    EXPECT_TRUE(hasColorInRegion(image, 320, 0, 480, 320, middle, 9)) << value;
+    EXPECT_FALSE(hasColorInRegion(image, 0, 0, 480, 320, Color::hex(0xfde725), 9)) << value;
+    EXPECT_FALSE(hasColorInRegion(image, 0, 0, 480, 320, Color::hex(0x440154), 9)) << value;
+  }
+}
+
 TEST(Offscreen, ReferenceDodecahedronWithWireframeAndGlyphs) {
   const Mesh mesh = makeDodecahedron();
   Frame frame = frameFor(mesh, -60, 25);
@@ -754,6 +773,35 @@ TEST(Plot, AxesRangesContainTheData) {
   const Eigen::Vector2d corner = g.toPixel(g.xMin, g.yMin);
   EXPECT_DOUBLE_EQ(corner.x(), g.left);
   EXPECT_DOUBLE_EQ(corner.y(), g.bottom);
+}
+
+TEST(Plot, RoundingNoiseOnAConservedQuantityIsDrawnFlat) {
+  // |p| of 1e-14 (rounding on a zero momentum) and |L| changing by 2e-4 of itself filled
+  // their panels as if they were signals. The energy-momentum panels' y axes span at least
+  // 1e-9 and 0.1 % of the largest value, so both are near-flat lines; a real change shows.
+  EnergyMomentumSeries d;
+  for (int k = 0; k <= 100; ++k) {
+    const double t = 0.1 * k, wobble = std::sin(3.0 * t);
+    d.time.push_back(t);
+    d.kinetic.push_back(1.0 + 0.5 * wobble);
+    d.potential.push_back(1.0 - 0.5 * wobble);
+    d.total.push_back(2.0);
+    d.px.push_back(1e-14 * wobble);
+    d.py.push_back(0.0);
+    d.pz.push_back(0.0);
+    d.lx.push_back(0.0);
+    d.ly.push_back(0.0);
+    d.lz.push_back(0.18 * (1.0 + 1e-4 * wobble));
+  }
+  const PlotLayout layout = layoutPlot(energyMomentumPanels(d));
+  ASSERT_EQ(layout.panels.size(), 3u);
+  const PanelGeometry& linear = layout.panels[1];
+  const PanelGeometry& angular = layout.panels[2];
+  EXPECT_GE(linear.yMax - linear.yMin, 1e-9);
+  EXPECT_GE(angular.yMax - angular.yMin, 1e-3 * 0.18);
+  // The energies' real swing of 1 J still fills its panel.
+  const PanelGeometry& energy = layout.panels[0];
+  EXPECT_LT(energy.yMax - energy.yMin, 3.0);
 }
 
 TEST(Plot, LogScaleAndNonFiniteValuesAreHandled) {

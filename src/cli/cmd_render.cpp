@@ -12,6 +12,10 @@ namespace zsculpt::cli {
 void addRenderCommand(CLI::App& root, CommandList& commands) {
   auto* app = root.add_subcommand(
       "render", "simulate offscreen (OSMesa) to PNG frames, diagnostics and plots");
+  app->footer(
+      "The camera is framed on the start. It stays put for a model held by pins and follows the "
+      "centre of mass of a free one (the caption says how far it went); it backs away when the "
+      "model would leave the view. A scene's camera sets the angles (and a fixed distance).");
   auto o = std::make_shared<RenderJobOptions>();
   o->model.addTo(app);
   o->run.addTo(app);

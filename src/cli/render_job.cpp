@@ -135,10 +135,13 @@ RenderJobResult runRenderJob(const RenderJobOptions& o) {
     std::cerr << "zsculpt: warning: " << loaded.source << ": " << warning << "\n";
   TimedEdits edits(loaded, sim, false);
 
-  // 2. The frame: the camera is framed once on the start (with its arrows) and then follows
-  // the centre of mass at that distance and orientation, so that a model set flying by its
-  // loads stays in view, deformation shows as deformation, and a still model gives identical
-  // frames.
+  // 2. The frame: the camera is framed once on the start (with its arrows), keeps that
+  // orientation, and backs away (never closer) when the model would leave the view, so
+  // that deformation shows as deformation and a still model gives identical frames. A
+  // model held by position pins is watched from a fixed point: the pins stay where they
+  // are on screen, and sagging or falling shows. A free model is followed by its centre of
+  // mass, so that one set flying by its loads stays in view, and the caption says how far
+  // the centre has gone.
   render::Frame frame;
   frame.mesh = &sim.model().mesh;
   frame.stencil = stencil.get();
@@ -148,6 +151,11 @@ RenderJobResult runRenderJob(const RenderJobOptions& o) {
   auto centreOfMass = [&]() -> Vec3 {
     return (sim.state().position.transpose() * mass) / mass.sum();
   };
+  const double diagonal = mesh.boundingBox().diagonal();
+  const Vec3 centreAtStart = centreOfMass();
+  bool anchored = false;
+  for (const Constraint& c : sim.constraints().constraints())
+    anchored = anchored || c.kind == ConstraintKind::Position;
   Vec3 targetOffset = Vec3::Zero();
   auto fillFrame = [&]() {
     frame.forces.clear();
@@ -171,9 +179,14 @@ RenderJobResult runRenderJob(const RenderJobOptions& o) {
       frame.scalar.name = propertyLabel(*property);
     }
     frame.display.legend = property.has_value();
-    frame.camera.target = centreOfMass() + targetOffset;
-    char caption[64];
-    std::snprintf(caption, sizeof caption, "t = %.2f s", sim.time());
+    if (!anchored) frame.camera.target = centreOfMass() + targetOffset;
+    const double moved = (centreOfMass() - centreAtStart).norm();
+    char caption[96];
+    if (!anchored && moved > 1e-3 * diagonal)
+      std::snprintf(caption, sizeof caption, "t = %.2f s, centre of mass %.3g m from its start",
+                    sim.time(), moved);
+    else
+      std::snprintf(caption, sizeof caption, "t = %.2f s", sim.time());
     frame.caption = caption;
   };
   fillFrame();
@@ -186,6 +199,10 @@ RenderJobResult runRenderJob(const RenderJobOptions& o) {
     if (c.distance) frame.camera.distance = *c.distance;
   }
   targetOffset = frame.camera.target - centreOfMass();
+  // A scene's explicit distance is kept as given; otherwise the camera may back away.
+  const bool backAway = !(loaded.scene && loaded.scene->camera.distance);
+  const double aspect = static_cast<double>(result.width) / result.height;
+  Points viewPoints, viewRefined;
 
   // 3. Simulate, render and record.
   render::EnergyMomentumSeries series;
@@ -217,6 +234,7 @@ RenderJobResult runRenderJob(const RenderJobOptions& o) {
     std::snprintf(name, sizeof name, "frame_%0*zu.png", digits, result.frames.size());
     const std::string path = (fs::path(o.out) / name).string();
     fillFrame();
+    if (backAway) render::keepSceneInView(frame, aspect, 1.25, viewPoints, viewRefined);
     renderer.renderPng(frame, result.width, result.height, path);
     result.frames.push_back(path);
   };

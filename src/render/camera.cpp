@@ -57,23 +57,30 @@ Eigen::Matrix4d Camera::projectionMatrix(double aspect) const {
 
 void Camera::frame(const Points& points, double aspect, double margin) {
   if (points.rows() == 0) return;
-  Vec3 lo = points.colwise().minCoeff().transpose();
-  Vec3 hi = points.colwise().maxCoeff().transpose();
+  const Vec3 lo = points.colwise().minCoeff().transpose();
+  const Vec3 hi = points.colwise().maxCoeff().transpose();
   target = 0.5 * (lo + hi);
+  distance = distanceToFit(points, aspect, margin);
+}
+
+double Camera::distanceToFit(const Points& points, double aspect, double margin) const {
+  if (points.rows() == 0) return distance;
   const double tanY = std::tan(0.5 * fovYDegrees * kDegrees);
   const double tanX = tanY * aspect;
   // The smallest distance at which every point projects inside the view for this
   // orientation: a point at view coordinates (x, y, z) relative to the target (z towards
-  // the eye) needs |x| <= (d - z) tan(halfX), and likewise for y.
-  distance = 1.0;  // the rotation below does not depend on it
+  // the eye) needs |x| <= (d - z) tan(halfX), and likewise for y. (The rotation does not
+  // depend on the distance.)
   const Eigen::Matrix3d rotation = viewMatrix().block<3, 3>(0, 0);
+  const Vec3 lo = points.colwise().minCoeff().transpose();
+  const Vec3 hi = points.colwise().maxCoeff().transpose();
   double needed = 1e-9 * std::max(1.0, (hi - lo).norm());
   for (Index i = 0; i < points.rows(); ++i) {
     const Vec3 q = rotation * (points.row(i).transpose() - target);
     needed = std::max({needed, std::abs(q.x()) / tanX + q.z(), std::abs(q.y()) / tanY + q.z()});
   }
   // Apparent size goes as 1 / distance: the margin shrinks the model by about 1 / margin.
-  distance = margin * needed;
+  return margin * needed;
 }
 
 void Camera::frame(const BoundingBox& box, double aspect, double margin) {

@@ -143,6 +143,15 @@ AxisData computeAxes(const PlotPanel& panel) {
     if (panel.yMax) axes.y.max = *panel.yMax;
     return axes;
   }
+  if (!panel.yMin && !panel.yMax) {
+    const double least =
+        std::max(panel.minSpan, panel.minRelativeSpan * std::max(std::abs(ylo), std::abs(yhi)));
+    if (yhi - ylo < least) {
+      const double middle = 0.5 * (ylo + yhi);
+      ylo = middle - 0.5 * least;
+      yhi = middle + 0.5 * least;
+    }
+  }
   if (yhi <= ylo) {
     const double pad = ylo == 0.0 ? 1.0 : 0.1 * std::abs(ylo);
     ylo -= pad;
@@ -370,6 +379,12 @@ std::vector<PlotPanel> energyMomentumPanels(const EnergyMomentumSeries& d,
   PlotPanel& angular = panels[2];
   angular.title = "Angular momentum about the centre of mass";
   angular.xLabel = "time (s)";
+  // Conserved quantities: a change under 0.1 % of their size, or of 1e-9 (rounding on a
+  // zero momentum is 1e-14), is drawn flat rather than magnified to fill the panel.
+  for (PlotPanel* panel : {&energy, &linear, &angular}) {
+    panel->minRelativeSpan = 1e-3;
+    panel->minSpan = 1e-9;
+  }
   if (momentum == MomentumDisplay::Magnitude) {
     linear.yLabel = "|p| (kg m/s)";
     linear.series = {{"|p|", d.time, magnitude(d.px, d.py, d.pz), seriesColor(2), false}};

@@ -180,6 +180,8 @@ struct Renderer::Impl {
   std::vector<std::uint8_t> readback;
   double scalarMin = 0.0;
   double scalarMax = 1.0;
+  bool scalarUniform = false;  // every finite value the same: the legend shows that value
+  double scalarValue = 0.0;
 
   // ---- setup ------------------------------------------------------------------------------
   GLuint compile(GLenum type, const std::string& name) {
@@ -717,7 +719,9 @@ struct Renderer::Impl {
         lo = 0.0;
         hi = 1.0;
       }
-      if (hi <= lo) {  // a uniform field: centre it in a small range
+      scalarUniform = frame.scalar.autoRange && hi <= lo;
+      scalarValue = lo;
+      if (hi <= lo) {  // a uniform field: centre it in a small range (the map's middle colour)
         const double pad = lo == 0.0 ? 1.0 : 0.05 * std::abs(lo);
         lo -= pad;
         hi += pad;
@@ -963,9 +967,9 @@ struct Renderer::Impl {
     legend.visible = frame.display.legend && frame.scalar.values != nullptr;
     if (!legend.visible) return;
     char key[512];
-    std::snprintf(key, sizeof key, "%s|%.9g|%.9g|%d|%d|%d", frame.scalar.name.c_str(), scalarMin,
+    std::snprintf(key, sizeof key, "%s|%.9g|%.9g|%d|%d|%d|%d", frame.scalar.name.c_str(), scalarMin,
                   scalarMax, static_cast<int>(frame.scalar.map), height,
-                  static_cast<int>(frame.style.text.r * 255.0f));
+                  static_cast<int>(frame.style.text.r * 255.0f), scalarUniform ? 1 : 0);
     const double font = fontSize(height);
     if (legend.key != key) {
       legend.key = key;
@@ -974,6 +978,35 @@ struct Renderer::Impl {
       const double barWidth = std::round(0.95 * font);
       const double barHeight = std::round(std::min(0.40 * height, 13.0 * font));
       const double titleHeight = frame.scalar.name.empty() ? 0.0 : 1.7 * font;
+      if (scalarUniform) {
+        // One value everywhere: one swatch and the value, not a scale of values that are
+        // nowhere on the model (a +-5 % range, or -1 to 1 about a zero).
+        const std::string label = "uniform, " + formatNumber(scalarValue, 4);
+        const double titleWidth = legend.canvas.textWidth(frame.scalar.name, font);
+        const double panelWidth =
+            std::ceil(std::max(titleWidth,
+                               barWidth + 0.8 * font + legend.canvas.textWidth(label, 0.9 * font)) +
+                      2 * pad);
+        const double panelHeight = std::ceil(pad + titleHeight + barWidth + pad);
+        legend.canvas.reset(static_cast<int>(panelWidth), static_cast<int>(panelHeight),
+                            Color{1, 1, 1, 0});
+        legend.canvas.fillRoundedRect(0, 0, panelWidth, panelHeight, 0.55 * font,
+                                      Color{1.0f, 1.0f, 1.0f, 0.80f});
+        if (!frame.scalar.name.empty())
+          legend.canvas.text(pad, pad, frame.scalar.name, font, frame.style.text);
+        const double top = std::round(pad + titleHeight);
+        legend.canvas.fillRect(pad, top, pad + barWidth, top + barWidth,
+                               sampleColorMap(frame.scalar.map, 0.5));
+        legend.canvas.strokeRect(pad, top, pad + barWidth, top + barWidth, 1.0,
+                                 Color::hex(0x50586a, 0.9f));
+        legend.canvas.text(pad + barWidth + 0.55 * font, top + 0.5 * barWidth, label, 0.9 * font,
+                           frame.style.text, Align::Start, Align::Center);
+        uploadOverlay(legend);
+        const double margin = 0.03 * height;
+        legend.x = std::round(width - legend.canvas.width() - margin);
+        legend.y = std::round(0.5 * (height - legend.canvas.height()));
+        return;
+      }
       double labelWidth = 0.0;
       char labels[5][32];
       for (int k = 0; k < 5; ++k) {
@@ -1336,17 +1369,28 @@ void OffscreenRenderer::renderPng(const Frame& frame, int width, int height,
   savePng(path, render(frame, width, height));
 }
 
-void frameScene(Frame& frame, double aspect, double margin) {
+namespace {
+
+// What frameScene and keepSceneInView keep in view, into `all`: the control points, the
+// refined surface and the tips of the force and torque arrows (on either side of their
+// vertex: which side depends on the surface normal).
+void scenePoints(const Frame& frame, Points& all, Points& refinedPoints) {
   if (frame.mesh == nullptr) throw InvalidInputError("frame: no mesh");
   const Points& control = frame.positions != nullptr ? *frame.positions : frame.mesh->positions();
-  Points refined;
-  if (frame.stencil != nullptr) {
-    refined.resize(frame.stencil->numRefinedVertices(), 3);
-    frame.stencil->apply(control, refined);
-  }
+  const Index refined = frame.stencil != nullptr ? frame.stencil->numRefinedVertices() : 0;
   const double diagonal = frame.mesh->boundingBox().diagonal();
-  // Arrow tips on either side of their vertex (which side depends on the surface normal).
-  auto arrows = [&](const std::vector<VertexVector>& vectors, std::vector<Vec3>& out) {
+  Index tips = 0;
+  if (frame.display.glyphs)
+    tips = 2 * static_cast<Index>(frame.forces.size() + frame.torques.size());
+  all.resize(control.rows() + refined + tips, 3);
+  all.topRows(control.rows()) = control;
+  if (refined > 0) {
+    refinedPoints.resize(refined, 3);
+    frame.stencil->apply(control, refinedPoints);
+    all.middleRows(control.rows(), refined) = refinedPoints;
+  }
+  Index next = control.rows() + refined;
+  auto arrows = [&](const std::vector<VertexVector>& vectors) {
     double largest = 0.0;
     for (const VertexVector& v : vectors) largest = std::max(largest, v.vector.norm());
     const double scale = frame.style.forceScale > 0.0 ? frame.style.forceScale
@@ -1355,27 +1399,44 @@ void frameScene(Frame& frame, double aspect, double margin) {
     for (const VertexVector& v : vectors) {
       if (v.vertex < 0 || v.vertex >= control.rows() || !v.vector.allFinite()) continue;
       const Vec3 p = control.row(v.vertex).transpose();
-      out.push_back(p + v.vector * scale);
-      out.push_back(p - v.vector * scale);
+      all.row(next++) = (p + v.vector * scale).transpose();
+      all.row(next++) = (p - v.vector * scale).transpose();
     }
   };
-  std::vector<Vec3> extra;
   if (frame.display.glyphs) {
-    arrows(frame.forces, extra);
-    arrows(frame.torques, extra);
+    arrows(frame.forces);
+    arrows(frame.torques);
   }
-  Points all(control.rows() + refined.rows() + static_cast<Index>(extra.size()), 3);
-  all.topRows(control.rows()) = control;
-  if (refined.rows() > 0) all.middleRows(control.rows(), refined.rows()) = refined;
-  for (size_t i = 0; i < extra.size(); ++i) {
-    all.row(control.rows() + refined.rows() + static_cast<Index>(i)) = extra[i].transpose();
-  }
-  // The legend takes the right edge (about 0.2 x the height, see updateLegend): frame the
-  // model in the rest and move it left by half the legend's share.
+  // Arrows on vertices that do not exist or are not finite are not drawn: the rows kept are
+  // the first `next` (conservativeResize only shrinks here, in place).
+  all.conservativeResize(next, 3);
+}
+
+// The legend takes the right edge (about 0.2 x the height, see updateLegend): the model is
+// framed in the rest, its share of the width.
+double legendShare(const Frame& frame, double aspect) {
   const bool legend = frame.display.legend && frame.scalar.values != nullptr;
-  const double share = legend ? std::min(0.4, 0.21 / aspect) : 0.0;
+  return legend ? std::min(0.4, 0.21 / aspect) : 0.0;
+}
+
+}  // namespace
+
+void frameScene(Frame& frame, double aspect, double margin) {
+  Points all, refined;
+  scenePoints(frame, all, refined);
+  // Framed in the width the legend leaves, and moved left by half the legend's share.
+  const double share = legendShare(frame, aspect);
   frame.camera.frame(all, aspect * (1.0 - share), margin);
   if (share > 0.0) frame.camera.pan(0.5 * share * aspect, 0.0);
+}
+
+bool keepSceneInView(Frame& frame, double aspect, double margin, Points& all, Points& refined) {
+  scenePoints(frame, all, refined);
+  const double needed =
+      frame.camera.distanceToFit(all, aspect * (1.0 - legendShare(frame, aspect)), margin);
+  if (!(needed > frame.camera.distance)) return false;
+  frame.camera.distance = needed;
+  return true;
 }
 
 void parseImageSize(std::string_view text, int& width, int& height, std::string_view what) {

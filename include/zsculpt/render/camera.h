@@ -27,6 +27,10 @@ struct Camera {
   /// the distance so that every point is in view at this aspect ratio (width / height);
   /// `margin` > 1 leaves room around the model (and its glyphs).
   void frame(const Points& points, double aspect, double margin = 1.2);
+  /// The distance at which every point is in view from this target and orientation (at
+  /// this aspect ratio and margin), the distance frame() sets for the box's centre.
+  [[nodiscard]] double distanceToFit(const Points& points, double aspect,
+                                     double margin = 1.2) const;
   /// The same for the eight corners of a box (looser for round models).
   void frame(const BoundingBox& box, double aspect, double margin = 1.2);
   /// Turntable rotation; pitch is clamped to +-89 degrees.

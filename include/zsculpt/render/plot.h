@@ -31,6 +31,11 @@ struct PlotPanel {
   /// Fixed axis limits; unset: x spans the finite data, y the data plus 5 % headroom.
   std::optional<double> xMin, xMax, yMin, yMax;
   bool logY = false;  ///< logarithmic y (non-positive values are skipped)
+  /// The least span of an automatic linear y axis: at least minSpan, and at least
+  /// minRelativeSpan times the largest |y|, about the data's middle, so that rounding
+  /// noise on a conserved quantity is drawn as the flat line it is, not as a signal.
+  double minSpan = 0.0;
+  double minRelativeSpan = 0.0;
 };
 
 struct PlotOptions {

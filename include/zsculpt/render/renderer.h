@@ -94,6 +94,11 @@ class OffscreenRenderer {
 /// renderer's automatic scale (Style::forceScale). Keeps the camera's orientation.
 void frameScene(Frame& frame, double aspect, double margin = 1.2);
 
+/// Moves the camera back, never closer, until what `frame` draws (as frameScene counts it)
+/// is in view from its target; `all` and `refined` hold the points counted, so that a frame
+/// after the first of a run allocates nothing. Returns whether it moved.
+bool keepSceneInView(Frame& frame, double aspect, double margin, Points& all, Points& refined);
+
 /// Parses "WxH" (e.g. "1280x720"); throws InvalidInputError "<what> TEXT: ..." otherwise.
 void parseImageSize(std::string_view text, int& width, int& height,
                     std::string_view what = "--size");
