@@ -20,6 +20,8 @@
 #include <numbers>
 #include <string>
 
+// The renderer's own allocations (C++): OSMesa's are the driver's (allocation_counter.h).
+#define ZSCULPT_COUNT_NEW_ONLY
 #include "support/allocation_counter.h"
 #include "zsculpt/core/errors.h"
 #include "zsculpt/mesh/builtin.h"

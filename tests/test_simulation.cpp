@@ -1478,23 +1478,33 @@ TEST(Simulation, ALoadThatEndsWhileAnotherActsLeavesNothingOnItsVertex) {
 
 TEST(Simulation, ALoadedPinnedCycleAllocatesNothing) {
   // The per-cycle path allocates nothing once running: a force, a torque and a pin on a
-  // braced torus, the plain and the constrained cycle alike. The torque starts after the
-  // counting does, so that its rows join the loads' row lists then: they were reserved
-  // when it was added (reserveLoadRows), and no cycle grows them.
-  for (const bool pinned : {false, true}) {
-    const Model model = makeModel(makeTorus(12, 8), ModelSpec{.angular = 0.2});
-    Simulation sim(model, settingsFor(model, 0.5));
-    const double t = sim.period();
-    sim.addForce(TimedLoad{20, Vec3(0.5, 0, 0.2), 0.0, 100.0});
-    sim.addTorque(TimedLoad{30, Vec3(0, 0, 0.3), 8.5 * t, 100.0});
-    if (pinned) sim.addPositionConstraint(0);
-    for (int k = 0; k < 3; ++k) sim.step();
-    gAllocations = 0;
-    gCounting = true;
-    for (int k = 0; k < 20; ++k) sim.step();
-    gCounting = false;
-    EXPECT_EQ(gAllocations.load(), 0) << (pinned ? "pinned" : "loads only");
-  }
+  // braced torus, the plain and the constrained cycle alike, on one thread and on two (a
+  // torus large enough to be stepped on two). The torque starts after the counting does, so
+  // that its rows join the loads' row lists then: they were reserved when it was added
+  // (reserveLoadRows), and no cycle grows them. The counter sees C allocations too: on one
+  // thread every parallel region made libgomp allocate a team, 8 a cycle, until the
+  // twenty-sixth session (parallelRegion, forEachPart).
+  struct Case {
+    int u, v, threads;
+  };
+  for (const Case c : {Case{12, 8, 1}, Case{40, 40, 1}, Case{40, 40, 2}})
+    for (const bool pinned : {false, true}) {
+      const Model model = makeModel(makeTorus(c.u, c.v), ModelSpec{.angular = 0.2});
+      SimulationSettings settings = settingsFor(model, 0.5);
+      settings.stepper.threads = c.threads;
+      Simulation sim(model, settings);
+      const double t = sim.period();
+      sim.addForce(TimedLoad{20, Vec3(0.5, 0, 0.2), 0.0, 100.0});
+      sim.addTorque(TimedLoad{30, Vec3(0, 0, 0.3), 8.5 * t, 100.0});
+      if (pinned) sim.addPositionConstraint(0);
+      for (int k = 0; k < 3; ++k) sim.step();
+      gAllocations = 0;
+      gCounting = true;
+      for (int k = 0; k < 20; ++k) sim.step();
+      gCounting = false;
+      EXPECT_EQ(gAllocations.load(), 0) << (pinned ? "pinned" : "loads only") << ", torus " << c.u
+                                        << "x" << c.v << ", " << c.threads << " thread(s)";
+    }
 }
 
 TEST(Simulation, ALargeModelThatDivergesIsCaughtAndRolledBack) {

@@ -327,45 +327,48 @@ PotentialEnergy potentialEnergy(const Model& model, const Points& position) {
   const std::int64_t edges = mesh.numEdges(), springs = static_cast<std::int64_t>(angles.size());
   std::array<double, kParts> radial{}, angular{};
   auto begin = [](std::int64_t count, int part) { return partBegin(count, part, kParts); };
+  int threads = 1;
 #ifdef _OPENMP
-  const bool parallel = edges + springs > 50000 && omp_in_parallel() == 0;
+  if (edges + springs > 50000 && omp_in_parallel() == 0) threads = omp_get_max_threads();
 #endif
-#pragma omp parallel for schedule(static) if (parallel)
-  for (int part = 0; part < kParts; ++part) {
-    // In batches: ends gathered, then the square roots, atan2s and energies vectorised
-    // (radialEnergies, angleEnergies), then added in order, term by term.
-    constexpr Index kBatch = 64;
-    double squared[kBatch], cosine[kBatch], kappa[kBatch], term[kBatch];
-    const double* r = position.data();
-    double sum = 0.0;
-    for (Index e0 = begin(edges, part); e0 < begin(edges, part + 1); e0 += kBatch) {
-      const Index m = std::min(kBatch, begin(edges, part + 1) - e0);
-      for (Index k = 0; k < m; ++k) {
-        const auto [i, j] = mesh.edge(e0 + k);
-        // Eigen's expression, as the rest lengths are made (Vec3::norm is its square root).
-        squared[k] = (position.row(i) - position.row(j)).squaredNorm();
-        kappa[k] = edgeStiffness(p.stiffness[i], p.stiffness[j]);
+  parallelRegion(threads, [&] {
+#pragma omp for schedule(static)
+    for (int part = 0; part < kParts; ++part) {
+      // In batches: ends gathered, then the square roots, atan2s and energies vectorised
+      // (radialEnergies, angleEnergies), then added in order, term by term.
+      constexpr Index kBatch = 64;
+      double squared[kBatch], cosine[kBatch], kappa[kBatch], term[kBatch];
+      const double* r = position.data();
+      double sum = 0.0;
+      for (Index e0 = begin(edges, part); e0 < begin(edges, part + 1); e0 += kBatch) {
+        const Index m = std::min(kBatch, begin(edges, part + 1) - e0);
+        for (Index k = 0; k < m; ++k) {
+          const auto [i, j] = mesh.edge(e0 + k);
+          // Eigen's expression, as the rest lengths are made (Vec3::norm is its square root).
+          squared[k] = (position.row(i) - position.row(j)).squaredNorm();
+          kappa[k] = edgeStiffness(p.stiffness[i], p.stiffness[j]);
+        }
+        radialEnergies(m, squared, kappa, p.restLength.data() + e0, term);
+        for (Index k = 0; k < m; ++k) sum += term[k];
       }
-      radialEnergies(m, squared, kappa, p.restLength.data() + e0, term);
-      for (Index k = 0; k < m; ++k) sum += term[k];
-    }
-    radial[static_cast<size_t>(part)] = sum;
-    sum = 0.0;
-    for (Index k0 = begin(springs, part); k0 < begin(springs, part + 1); k0 += kBatch) {
-      const Index m = std::min(kBatch, begin(springs, part + 1) - k0);
-      for (Index j = 0; j < m; ++j) {
-        const auto [c, a, b] = angles[static_cast<size_t>(k0 + j)];
-        const double *rc = r + 3 * static_cast<size_t>(c), *ra = r + 3 * static_cast<size_t>(a),
-                     *rb = r + 3 * static_cast<size_t>(b);
-        armsSinCos(ra[0] - rc[0], ra[1] - rc[1], ra[2] - rc[2], rb[0] - rc[0], rb[1] - rc[1],
-                   rb[2] - rc[2], squared[j], cosine[j]);
-        kappa[j] = p.angularStiffness[c];
+      radial[static_cast<size_t>(part)] = sum;
+      sum = 0.0;
+      for (Index k0 = begin(springs, part); k0 < begin(springs, part + 1); k0 += kBatch) {
+        const Index m = std::min(kBatch, begin(springs, part + 1) - k0);
+        for (Index j = 0; j < m; ++j) {
+          const auto [c, a, b] = angles[static_cast<size_t>(k0 + j)];
+          const double *rc = r + 3 * static_cast<size_t>(c), *ra = r + 3 * static_cast<size_t>(a),
+                       *rb = r + 3 * static_cast<size_t>(b);
+          armsSinCos(ra[0] - rc[0], ra[1] - rc[1], ra[2] - rc[2], rb[0] - rc[0], rb[1] - rc[1],
+                     rb[2] - rc[2], squared[j], cosine[j]);
+          kappa[j] = p.angularStiffness[c];
+        }
+        angleEnergies(m, squared, cosine, kappa, p.restAngle.data() + k0, term);
+        for (Index j = 0; j < m; ++j) sum += term[j];
       }
-      angleEnergies(m, squared, cosine, kappa, p.restAngle.data() + k0, term);
-      for (Index j = 0; j < m; ++j) sum += term[j];
+      angular[static_cast<size_t>(part)] = sum;
     }
-    angular[static_cast<size_t>(part)] = sum;
-  }
+  });
   PotentialEnergy energy;
   for (int part = 0; part < kParts; ++part) {
     energy.radial += radial[static_cast<size_t>(part)];
@@ -380,16 +383,19 @@ double gravityEnergy(const PhysicalProperties& properties, const Points& positio
   if (properties.gravity.isZero(0.0)) return 0.0;
   const std::int64_t vertices = position.rows();
   std::array<double, kParts> part{};
+  int threads = 1;
 #ifdef _OPENMP
-  const bool parallel = vertices > 50000 && omp_in_parallel() == 0;
+  if (vertices > 50000 && omp_in_parallel() == 0) threads = omp_get_max_threads();
 #endif
-#pragma omp parallel for schedule(static) if (parallel)
-  for (int k = 0; k < kParts; ++k) {
-    double sum = 0.0;
-    for (Index i = partBegin(vertices, k, kParts); i < partBegin(vertices, k + 1, kParts); ++i)
-      sum -= properties.mass[i] * properties.gravity.dot(position.row(i).transpose());
-    part[static_cast<size_t>(k)] = sum;
-  }
+  parallelRegion(threads, [&] {
+#pragma omp for schedule(static)
+    for (int k = 0; k < kParts; ++k) {
+      double sum = 0.0;
+      for (Index i = partBegin(vertices, k, kParts); i < partBegin(vertices, k + 1, kParts); ++i)
+        sum -= properties.mass[i] * properties.gravity.dot(position.row(i).transpose());
+      part[static_cast<size_t>(k)] = sum;
+    }
+  });
   double energy = 0.0;
   for (double term : part) energy += term;
   return energy;
@@ -1117,12 +1123,11 @@ void ForceKernel::compute(const Model& model, const Points& position, Points& fo
   }
   const int team = threads > 0 ? std::min(threads, maxThreads()) : maxThreads();
   (void)team;
-#pragma omp parallel num_threads(team) if (team > 1)
-  {
+  parallelRegion(team, [&] {
     scatter(model, position, force, withEnergy);
 #pragma omp for schedule(static)
     for (Index b = 0; b < numBlocks(); ++b) gatherBlock(b, force);
-  }
+  });
 }
 
 void ForceKernel::scatter(const Model& model, const Points& position, Points& force,
@@ -1142,6 +1147,12 @@ void ForceKernel::scatter(const Model& model, const Points& position, Points& fo
   }
   Scratch& scratch = scratch_[static_cast<size_t>(threadNumber())];
   const Index blocks = numBlocks();
+  if (!inParallel()) {
+    // One thread (parallelRegion ran the body directly): a dynamic loop outside a region
+    // would make libgomp allocate its work share, every step.
+    for (Index b = 0; b < blocks; ++b) scatterBlock(model, position, force, b, scratch, withEnergy);
+    return;
+  }
 #pragma omp for schedule(dynamic, 1)
   for (Index b = 0; b < blocks; ++b) scatterBlock(model, position, force, b, scratch, withEnergy);
 }

@@ -13,6 +13,7 @@
 
 #include "filter_rows_impl.h"
 #include "zsculpt/core/errors.h"
+#include "zsculpt/core/parts.h"
 
 #ifdef _OPENMP
 #include <omp.h>
@@ -473,12 +474,11 @@ const Points& Stepper::startAt(const Points& position) {
   // from a rewound internal_, is made now (as in rebuild()).
   if (!totalForceReady_) (void)lastTotalForce();
   const Index blocks = forces_.numBlocks();
-#pragma omp parallel num_threads(threads_) if (threads_ > 1)
-  {
+  parallelRegion(threads_, [&] {
     forces_.scatter(model_, position, internal_, options_.measureEnergy);
 #pragma omp for schedule(static)
     for (Index b = 0; b < blocks; ++b) forces_.gatherBlock(b, internal_);
-  }
+  });
   cacheValid_ = true;
   rewound_ = false;
   rewindable_ = false;  // internal_ is no step's end any more
@@ -492,15 +492,17 @@ const Points* Stepper::turnEndForces(const Mat3& rotation) {
   if (scheme_ != Scheme::Default || !cacheValid_ || rewound_ || begun_) return nullptr;
   const Index blocks = forces_.numBlocks();
   double* f = internal_.data();
-#pragma omp parallel for num_threads(threads_) if (threads_ > 1) schedule(static)
-  for (Index b = 0; b < blocks; ++b)
-    for (Index i = forces_.blockBegin(b); i < forces_.blockEnd(b); ++i) {
-      double* row = f + 3 * static_cast<size_t>(i);
-      const Vec3 turned = rotation * Vec3(row[0], row[1], row[2]);
-      row[0] = turned.x();
-      row[1] = turned.y();
-      row[2] = turned.z();
-    }
+  parallelRegion(threads_, [&] {
+#pragma omp for schedule(static)
+    for (Index b = 0; b < blocks; ++b)
+      for (Index i = forces_.blockBegin(b); i < forces_.blockEnd(b); ++i) {
+        double* row = f + 3 * static_cast<size_t>(i);
+        const Vec3 turned = rotation * Vec3(row[0], row[1], row[2]);
+        row[0] = turned.x();
+        row[1] = turned.y();
+        row[2] = turned.z();
+      }
+  });
   kickValid_ = false;   // the kept kick is for the unmoved end
   rewindable_ = false;  // internal_ is no step's end any more
   return &internal_;
@@ -826,8 +828,7 @@ void Stepper::stepDefault(const State& from, State& s, const Points& external,
   in.dampHalf = dampHalf_.data();
   const bool begin = part != Part::Finish, finish = part != Part::Begin;
   bool externalZero = begunZero_, reused = begunKeptKick_;
-#pragma omp parallel num_threads(threads_) if (threads_ > 1)
-  {
+  parallelRegion(threads_, [&] {
     // The finish takes the loads as the begin found them.
     const LoadCheck loads =
         begin ? markZeroExternalBlocks(external) : LoadCheck{begunZero_, begunKeptKick_};
@@ -923,7 +924,7 @@ void Stepper::stepDefault(const State& from, State& s, const Points& external,
       externalZero = zero;
       reused = reuse;
     }
-  }
+  });
   endDefaultPart(part, externalZero, reused, !share.empty());
 }
 
@@ -977,8 +978,7 @@ void Stepper::stepDriftFiltered(const State& from, State& s, const Points& exter
       dampHalf_.data()};
   const bool begin = part != Part::Finish, finish = part != Part::Begin;
   bool externalZero = begunZero_, reused = begunKeptKick_;
-#pragma omp parallel num_threads(threads_) if (threads_ > 1)
-  {
+  parallelRegion(threads_, [&] {
     // The finish takes the loads as the begin found them.
     const LoadCheck loads =
         begin ? markZeroExternalBlocks(external) : LoadCheck{begunZero_, begunKeptKick_};
@@ -1114,7 +1114,7 @@ void Stepper::stepDriftFiltered(const State& from, State& s, const Points& exter
       externalZero = zero;
       reused = reuse;
     }
-  }
+  });
   endDefaultPart(part, externalZero, reused, !share.empty());
 }
 
@@ -1129,8 +1129,7 @@ void Stepper::stepPaper(State& s, const Points& external, std::span<const double
   const double* a = acceleration_.data();
   double* w1 = work1_.data();
   double* w3 = work3_.data();
-#pragma omp parallel num_threads(threads_) if (threads_ > 1)
-  {
+  parallelRegion(threads_, [&] {
     forces_.scatter(model_, s.position, internal_);
 #pragma omp for schedule(static)
     for (Index b = 0; b < blocks; ++b) {
@@ -1198,7 +1197,7 @@ void Stepper::stepPaper(State& s, const Points& external, std::span<const double
           }
         }
     }
-  }
+  });
   totalForceReady_ = true;
   cacheValid_ = false;
 }
@@ -1314,8 +1313,7 @@ void Stepper::stepSymplecticEuler(State& s, const Points& external, std::span<co
   double* r = s.position.data();
   double* v = s.velocity.data();
   const double* a = acceleration_.data();
-#pragma omp parallel num_threads(threads_) if (threads_ > 1)
-  {
+  parallelRegion(threads_, [&] {
     forces_.scatter(model_, s.position, internal_);
 #pragma omp for schedule(static)
     for (Index b = 0; b < blocks; ++b) {
@@ -1330,7 +1328,7 @@ void Stepper::stepSymplecticEuler(State& s, const Points& external, std::span<co
         }
       }
     }
-  }
+  });
   totalForceReady_ = true;
   cacheValid_ = false;
 }

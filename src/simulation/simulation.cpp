@@ -371,16 +371,19 @@ double Simulation::strainRate2() const {
   // thread only helps when a core is free).
   double rate2 = 0.0;
   const int threads = stepper_->threads();
-  // clang-format off
-#pragma omp parallel for reduction(max : rate2) num_threads(threads) if (threads > 1)
-  // clang-format on
-  for (Index e = 0; e < m; ++e) {
-    const double lambda = rest[e];
-    if (!(lambda > 0.0)) continue;
-    const auto [a, b] = edges[static_cast<size_t>(e)];
-    const double dx = v(a, 0) - v(b, 0), dy = v(a, 1) - v(b, 1), dz = v(a, 2) - v(b, 2);
-    rate2 = std::max(rate2, (dx * dx + dy * dy + dz * dz) / (lambda * lambda));
-  }
+  parallelRegion(threads, [&] {
+    double local = 0.0;
+#pragma omp for schedule(static) nowait
+    for (Index e = 0; e < m; ++e) {
+      const double lambda = rest[e];
+      if (!(lambda > 0.0)) continue;
+      const auto [a, b] = edges[static_cast<size_t>(e)];
+      const double dx = v(a, 0) - v(b, 0), dy = v(a, 1) - v(b, 1), dz = v(a, 2) - v(b, 2);
+      local = std::max(local, (dx * dx + dy * dy + dz * dz) / (lambda * lambda));
+    }
+#pragma omp critical(zsculpt_strain_rate)
+    rate2 = std::max(rate2, local);
+  });
   return rate2;
 }
 

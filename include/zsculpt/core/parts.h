@@ -16,13 +16,31 @@ inline Index partBegin(std::int64_t count, int part, int parts) {
   return static_cast<Index>(count * part / parts);
 }
 
+/// body() in one parallel region on `threads` threads, or called directly when there is one
+/// (its orphaned `omp for` and `omp single` then run on the calling thread). OpenMP's `if`
+/// clause is not enough: libgomp makes and frees a team for a region that runs on one
+/// thread, an allocation per region, every step (8 a default cycle on one thread).
+template <class Body>
+void parallelRegion(int threads, Body&& body) {
+  if (threads <= 1) {
+    body();
+    return;
+  }
+#pragma omp parallel num_threads(threads)
+  body();
+}
+
 /// body(part, begin, end) for each of kParts fixed contiguous parts of [0, n), on `threads`
-/// threads when n is above `serialUpTo` (else on the calling thread, in part order).
+/// threads when n is above `serialUpTo` (else on the calling thread, in part order, with no
+/// parallel region: parallelRegion says why).
 template <int kParts, class Body>
 void forEachPart(std::int64_t n, int threads, std::int64_t serialUpTo, Body&& body) {
-  // clang-format off
-#pragma omp parallel for num_threads(threads) if (threads > 1 && n > serialUpTo)
-  // clang-format on
+  if (threads <= 1 || n <= serialUpTo) {
+    for (int part = 0; part < kParts; ++part)
+      body(part, partBegin(n, part, kParts), partBegin(n, part + 1, kParts));
+    return;
+  }
+#pragma omp parallel for num_threads(threads)
   for (int part = 0; part < kParts; ++part)
     body(part, partBegin(n, part, kParts), partBegin(n, part + 1, kParts));
 }

@@ -22,7 +22,7 @@
 //             baselines users would otherwise pick.
 //
 // External forces are held constant over a step (zero-order hold, as the z-transform of
-// sampled forces assumes). No allocation per step.
+// sampled forces assumes). No allocation per step (but for the exact scheme's dense products).
 //
 // Speed (docs/performance.md): the internal forces come from ForceKernel; every scheme's
 // step is a few passes over blocks of vertices inside one OpenMP parallel region, each
