@@ -380,6 +380,32 @@ TEST_F(Cli, OutputsAreCheckedBeforeTheWorkAndLinksAndDevicesSurvive) {
   EXPECT_TRUE(fs::is_character_file("/dev/full"));
 }
 
+TEST_F(Cli, TheDocumentedSceneRunsCleanlyAndAnEditThatChangesNothingSaysSo) {
+  // docs/scene-format.md's complete example, run over its own 5 s: every edit changes
+  // something and nothing warns (it stretched 70 m under gravity, its normal pin let go and
+  // an edit reached nothing, silently, until the twenty-sixth session).
+  const std::string doc = slurp(std::string(ZSCULPT_SOURCE_DIR) + "/docs/scene-format.md");
+  const auto start = doc.find("```json\n");
+  ASSERT_NE(start, std::string::npos);
+  const auto end = doc.find("```", start + 8);
+  std::ofstream(path("example.json")) << doc.substr(start + 8, end - start - 8);
+  const Result r = run("simulate " + path("example.json") + " --json");
+  ASSERT_EQ(r.status, 0) << r.err;
+  EXPECT_EQ(r.err, "");
+  const auto j = nlohmann::json::parse(r.out);
+  EXPECT_EQ(j["edits_applied"].get<int>(), 5);
+  // A dab centred where the model is not: said, and not counted.
+  std::ofstream(path("far.json")) << R"({"mesh": "builtin:torus", "edits": [{"time": 0.1,
+      "property": "mass", "center": [30, 0, 0], "radius": 0.5, "value": 2.0}],
+      "simulation": {"time": 0.5}})";
+  const Result far = run("simulate " + path("far.json") + " --json");
+  ASSERT_EQ(far.status, 0) << far.err;
+  EXPECT_NE(far.err.find("far.json: /edits/0 at t = "), std::string::npos) << far.err;
+  EXPECT_NE(far.err.find(" changed nothing (its brush reached no vertex"), std::string::npos)
+      << far.err;
+  EXPECT_EQ(nlohmann::json::parse(far.out)["edits_applied"].get<int>(), 0);
+}
+
 TEST_F(Cli, AScenesErrorsNameTheJsonPath) {
   std::ofstream(path("scene.json")) << R"({"mesh": "builtin:grid", "properties": {"mass": 0}})";
   const Result r = run("info " + path("scene.json"));

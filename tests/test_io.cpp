@@ -1078,8 +1078,8 @@ TEST_F(SceneFile, TheDocumentedExampleIsValid) {
   ASSERT_FALSE(example.empty());
   const SceneDescription scene = parseScene(example, "example.json");
   EXPECT_EQ(scene.mesh, "builtin:torus");
-  EXPECT_EQ(scene.properties.mass, 0.5);
-  EXPECT_EQ(scene.properties.gravity, Vec3(0, 0, -9.81));
+  EXPECT_EQ(scene.properties.mass, 0.05);
+  EXPECT_EQ(scene.properties.gravity, Vec3(0, 0, -1.0));
   EXPECT_EQ(scene.properties.stiffnessCap, 50.0);
   EXPECT_EQ(scene.overrides.size(), 3u);
   EXPECT_EQ(scene.constraints.size(), 3u);
@@ -1087,11 +1087,11 @@ TEST_F(SceneFile, TheDocumentedExampleIsValid) {
   EXPECT_EQ(scene.forces.at(0).end, 0.5);
   EXPECT_TRUE(std::isinf(scene.torques.at(0).end));
   ASSERT_EQ(scene.edits.size(), 5u);
-  EXPECT_EQ(scene.edits[0].kind, EditKind::Brush);
-  EXPECT_EQ(scene.edits[0].centerVertex, 30);
-  EXPECT_EQ(scene.edits[1].centerPoint, Vec3(2, 0, 1));
-  EXPECT_EQ(scene.edits[1].brush.mode, BrushMode::Multiply);
-  EXPECT_EQ(scene.edits[1].brush.distance, BrushDistance::Euclidean);
+  EXPECT_EQ(scene.edits[1].kind, EditKind::Brush);
+  EXPECT_EQ(scene.edits[1].centerVertex, 30);
+  EXPECT_EQ(scene.edits[0].centerPoint, Vec3(2.3, 0, 0.95));
+  EXPECT_EQ(scene.edits[0].brush.mode, BrushMode::Multiply);
+  EXPECT_EQ(scene.edits[0].brush.distance, BrushDistance::Euclidean);
   EXPECT_EQ(scene.edits[2].kind, EditKind::Global);
   EXPECT_EQ(scene.edits[3].kind, EditKind::Relax);
   EXPECT_EQ(scene.edits[4].kind, EditKind::ScaleRest);
@@ -1102,9 +1102,9 @@ TEST_F(SceneFile, TheDocumentedExampleIsValid) {
   // And it fits its mesh.
   const Model model = buildModel(scene, loadMeshSource(scene.mesh));
   EXPECT_EQ(model.properties.stiffness[11], 1.5);
-  EXPECT_EQ(model.properties.stiffness[13], 5.0);
+  EXPECT_EQ(model.properties.stiffness[13], 20.0);
   EXPECT_EQ(model.properties.mass[1], 1.0);
-  EXPECT_EQ(model.properties.mass[2], 0.5);
+  EXPECT_EQ(model.properties.mass[2], 0.05);
   EXPECT_EQ(model.properties.restLength[1], 0.9);
   EXPECT_EQ(model.properties.damping[0], 0.02);
 }

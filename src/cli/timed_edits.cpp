@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <iostream>
 
 #include "zsculpt/core/errors.h"
 
@@ -25,7 +26,15 @@ void TimedEdits::beforeStep(Simulation& sim) {
     } catch (const InvalidInputError& e) {
       throw InvalidInputError(source + ": /edits/" + std::to_string(edit.source) + ": " + e.what());
     }
-    if (!result.changed) continue;
+    if (!result.changed) {
+      // Said, not skipped silently: a scene's edit that does nothing is usually a brush whose
+      // centre the model has left (edits_applied counts the edits that changed something).
+      std::cerr << "zsculpt: warning: " << source << ": /edits/" << edit.source
+                << " at t = " << sim.time()
+                << " s changed nothing (its brush reached no vertex, or the values were "
+                   "already there)\n";
+      continue;
+    }
     ++applied;
     sim.propertiesChanged(result.matrixRows);  // local, even for global edits
     energyChange += std::abs(sim.diagnostics().total() - energyBefore);
