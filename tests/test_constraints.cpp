@@ -3,7 +3,9 @@
 
 #include <gtest/gtest.h>
 
+#include <array>
 #include <cmath>
+#include <cstdlib>
 #include <functional>
 
 #include "zsculpt/constraints/constraints.h"
@@ -63,6 +65,30 @@ ConstraintReport solveOneCycle(const Model& model, const ConstraintSet& set, Sch
 }
 
 }  // namespace
+
+TEST(LeastNormSolve, IsEigensCompleteOrthogonalSolve) {
+  // The Newton step's solve without Eigen's allocations: the same least-squares, least-norm
+  // solution, for full-rank, wide, tall and rank-deficient Jacobians (as a pin and a normal
+  // on one ring make them).
+  std::srand(11);
+  for (const auto [rows, cols, rank] :
+       {std::array<Index, 3>{6, 6, 6}, {9, 6, 6}, {6, 9, 6}, {9, 8, 5}, {12, 12, 7}, {3, 3, 0}}) {
+    const Eigen::MatrixXd a = rank > 0 ? Eigen::MatrixXd(Eigen::MatrixXd::Random(rows, rank) *
+                                                         Eigen::MatrixXd::Random(rank, cols))
+                                       : Eigen::MatrixXd::Zero(rows, cols);
+    const VectorX b = VectorX::Random(rows);
+    Eigen::CompleteOrthogonalDecomposition<Eigen::MatrixXd> factor(a);
+    ASSERT_EQ(factor.rank(), rank);
+    VectorX work(rows), unpermuted(cols), x(cols);
+    leastNormSolve(factor, b, work, unpermuted, x);
+    const VectorX expected = factor.solve(b);
+    EXPECT_LT((x - expected).norm(), 1e-12 * (1.0 + expected.norm()))
+        << rows << " x " << cols << ", rank " << rank;
+    // And it is the least-squares solution of least norm: A^T (A x - b) = 0, x in A's row
+    // space (orthogonal to its null space).
+    EXPECT_LT((a.transpose() * (a * x - b)).norm(), 1e-10 * (1.0 + b.norm()));
+  }
+}
 
 TEST(Normals, BestPlaneFit) {
   const std::vector<Vec3> plane = {Vec3(0, 0, 0), Vec3(1, 0, 0), Vec3(0, 1, 0), Vec3(1, 1, 0)};

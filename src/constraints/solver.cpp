@@ -230,8 +230,8 @@ void ConstraintSolver::setUp(const Mesh& mesh, const ConstraintSet& constraints)
   pinError_.setZero(s, 3);
   pinStep_.setZero(s, 3);
   planeMotion_.setZero(s, 3);
-  for (VectorX* v : {&rhs_, &shifted_}) v->setZero(residuals);
-  for (VectorX* v : {&step_, &base_, &trial_}) v->setZero(unknownCount);
+  for (VectorX* v : {&rhs_, &shifted_, &solveWork_}) v->setZero(residuals);
+  for (VectorX* v : {&step_, &base_, &trial_, &solveUnpermuted_}) v->setZero(unknownCount);
 }
 
 Index ConstraintSolver::local(Index vertex) const {
@@ -633,7 +633,7 @@ bool ConstraintSolver::solve(const ConstraintSet& constraints, const StepRespons
       jacobian_.col(c) = (shifted_ - rhs_) / h;
     }
     factor_.compute(jacobian_);
-    step_ = factor_.solve(rhs_);
+    leastNormSolve(factor_, rhs_, solveWork_, solveUnpermuted_, step_);
     // Backtracking: halve the step until the residual shrinks, with every held plane's forces
     // moving its ring by at most its reach in the cycle (kReachTurns; at most its diameter,
     // the most any turn of it needs).
@@ -721,6 +721,50 @@ void ConstraintSolver::velocityCorrection(double period, const Points& startPosi
     const Eigen::RowVector3d wanted = (endPosition.row(v) - startPosition.row(v)) / t;
     delta.row(pin.local) = wanted - velocity.row(v);
   }
+}
+
+void leastNormSolve(const Eigen::CompleteOrthogonalDecomposition<Eigen::MatrixXd>& factor,
+                    const VectorX& b, VectorX& work, VectorX& unpermuted, VectorX& x) {
+  // CompleteOrthogonalDecomposition::solve written out over the caller's vectors (Eigen's
+  // made 5 to 28 allocations a cycle with a normal pin, in the Newton step).
+  // A P = Q [T 0; 0 0] Z: x = P Z^T [T^-1 (Q^T b)_1..r; 0].
+  const Eigen::MatrixXd& qtz = factor.matrixQTZ();
+  const Index rows = qtz.rows(), cols = qtz.cols(), rank = factor.rank();
+  x.setZero();
+  if (rank == 0) return;
+  // Q^T b: the QR's first `rank` reflectors, H_0 first (v_k = [1; qtz(k+1:, k)]).
+  work = b;
+  for (Index k = 0; k < rank; ++k) {
+    double dot = work[k];
+    for (Index i = k + 1; i < rows; ++i) dot += qtz(i, k) * work[i];
+    dot *= factor.hCoeffs()[k];
+    work[k] -= dot;
+    for (Index i = k + 1; i < rows; ++i) work[i] -= dot * qtz(i, k);
+  }
+  // T z = (Q^T b)_1..r, T upper triangular.
+  VectorX& y = unpermuted;
+  for (Index i = rank - 1; i >= 0; --i) {
+    double sum = work[i];
+    for (Index j = i + 1; j < rank; ++j) sum -= qtz(i, j) * y[j];
+    y[i] = sum / qtz(i, i);
+  }
+  for (Index i = rank; i < cols; ++i) y[i] = 0.0;
+  // Z^T [z; 0] when J is rank deficient: the reflectors stored right of T, row k's acting on
+  // entries k and rank..cols-1 (Eigen's applyZAdjointOnTheLeftInPlace).
+  if (rank < cols) {
+    for (Index k = 0; k < rank; ++k) {
+      if (k != rank - 1) std::swap(y[k], y[rank - 1]);
+      double dot = y[rank - 1];
+      for (Index j = rank; j < cols; ++j) dot += qtz(k, j) * y[j];
+      dot *= factor.zCoeffs()[k];
+      y[rank - 1] -= dot;
+      for (Index j = rank; j < cols; ++j) y[j] -= dot * qtz(k, j);
+      if (k != rank - 1) std::swap(y[k], y[rank - 1]);
+    }
+  }
+  // x = P y.
+  const auto& permutation = factor.colsPermutation().indices();
+  for (Index i = 0; i < cols; ++i) x[permutation[i]] = y[i];
 }
 
 }  // namespace zsculpt

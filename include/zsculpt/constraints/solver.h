@@ -281,6 +281,14 @@ class ConstraintSolver {
   Eigen::MatrixXd jacobian_;
   Eigen::CompleteOrthogonalDecomposition<Eigen::MatrixXd> factor_;
   VectorX rhs_, step_, base_, trial_, shifted_, initial_;
+  VectorX solveWork_, solveUnpermuted_;  // leastNormSolve's, sized once in setUp
 };
+
+/// x = the least-squares, least-norm solution of A x = b from A's complete orthogonal
+/// decomposition, as factor.solve(b) gives it, but without its allocations (it copies b and
+/// makes workspaces on every call): `work` (A's rows) and `unpermuted` (its columns) are
+/// the caller's, sized once, and so is x.
+void leastNormSolve(const Eigen::CompleteOrthogonalDecomposition<Eigen::MatrixXd>& factor,
+                    const VectorX& b, VectorX& work, VectorX& unpermuted, VectorX& x);
 
 }  // namespace zsculpt
