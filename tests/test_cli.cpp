@@ -713,6 +713,18 @@ TEST_F(Cli, ARefusedRunMakesNoFolderAndNamesTheFlagAtFault) {
   const Result still = run("simulate builtin:dodecahedron --steps 2");
   EXPECT_EQ(still.status, 0);
   EXPECT_NE(still.out.find("(drift undefined)"), std::string::npos) << still.out;
+  // A load's work and impulse are a change, not the scheme's drift: said so, with the
+  // momentum's sources (a 1 N load for 4.47 s was "momentum drift 4.47").
+  const Result loaded = run("simulate builtin:dodecahedron --steps 20 --force 3:0,0,1");
+  EXPECT_EQ(loaded.status, 0) << loaded.err;
+  EXPECT_NE(loaded.out.find("(loads, gravity or constraints acted: a change, not a drift)"),
+            std::string::npos)
+      << loaded.out;
+  EXPECT_NE(
+      loaded.out.find("momentum change 4.47214 N s (loads 4.47214, gravity 0, constraints 0)"),
+      std::string::npos)
+      << loaded.out;
+  EXPECT_EQ(loaded.out.find("momentum drift"), std::string::npos) << loaded.out;
 }
 
 TEST_F(Cli, RenderDivergenceExitsThreeKeepingWhatWasRendered) {

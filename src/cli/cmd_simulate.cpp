@@ -140,10 +140,28 @@ int runSimulate(const SimulateOptions& options) {
     };
     std::cout << "scheme " << schemeName(resolved.settings.scheme) << ", dt "
               << resolved.settings.period << " s (" << resolved.settings.period / resolved.tMax
-              << " T_max), " << steps << " steps\n"
-              << "energy " << start.total() << " -> " << last.total() << " (drift "
-              << drift(energyDrift) << "), momentum drift " << drift(momentumDrift)
-              << ", angular momentum drift " << drift(angularDrift) << "\n";
+              << " T_max), " << steps << " steps\n";
+    const ImpulseLedger& ledger = sim.impulses();
+    const bool acted = ledger.loads.norm() > 0.0 || ledger.gravity.norm() > 0.0 ||
+                       ledger.constraints.norm() > 0.0 || ledger.loadsAngular.norm() > 0.0 ||
+                       ledger.constraintsAngular.norm() > 0.0;
+    if (!acted) {
+      std::cout << "energy " << start.total() << " -> " << last.total() << " (drift "
+                << drift(energyDrift) << "), momentum drift " << drift(momentumDrift)
+                << ", angular momentum drift " << drift(angularDrift) << "\n";
+    } else {
+      // Loads, gravity or constraints put energy and momentum in: what changed is their
+      // doing (and the damping's), not a drift of the scheme; the momentum's sources are
+      // said beside it (the JSON keeps the contract's drift fields).
+      std::cout << "energy " << start.total() << " -> " << last.total()
+                << " (loads, gravity or constraints acted: a change, not a drift)\n"
+                << "momentum change " << (last.momentum - start.momentum).norm() << " N s (loads "
+                << ledger.loads.norm() << ", gravity " << ledger.gravity.norm() << ", constraints "
+                << ledger.constraints.norm() << "), angular momentum change "
+                << (last.angularMomentum - start.angularMomentum).norm() << " N m s (loads "
+                << ledger.loadsAngular.norm() << ", constraints "
+                << ledger.constraintsAngular.norm() << ")\n";
+    }
     if (splitCycles > 0)
       std::cout << splitCycles << " steps split for fast motion, into up to " << mostSubsteps
                 << " substeps\n";
