@@ -13,10 +13,8 @@
 #include <thread>
 
 #include "zsculpt/core/errors.h"
-#include "zsculpt/editing/edit_queue.h"
 #include "zsculpt/editing/editor.h"
 #include "zsculpt/editing/local_update.h"
-#include "zsculpt/editing/scene_edits.h"
 #include "zsculpt/editing/schedule.h"
 #include "zsculpt/mesh/builtin.h"
 #include "zsculpt/physics/diagnostics.h"
@@ -717,55 +715,6 @@ TEST(BadInput, RefusedWithAClearMessageAndTheModelUnchanged) {
 
 // ---- threading, scripted edits, the stepper ----------------------------------------------------
 
-TEST(EditQueue, ProducersOnOtherThreadsAndTheSolverApplyingBetweenCycles) {
-  // No angle springs: with them the rest shape is an equilibrium only to 1e-15 (the angle
-  // force and angleAt() round differently), and the replay below needs the exact shape.
-  Model model = makeModel(makeTorus(16, 16), 0.0);
-  model.properties.gravity.setZero();
-  Model replay = model;
-  State state = State::atRest(model.mesh);
-  const double period = 0.4 * criticalPeriod(SystemMatrices(model));
-  Stepper stepper(model, Scheme::Paper, period);
-  Editor editor(model.mesh, model.angles);
-  EditQueue queue;
-  constexpr int kThreads = 4, kPerThread = 100;
-  std::vector<std::thread> producers;
-  for (int t = 0; t < kThreads; ++t)
-    producers.emplace_back([&queue, t]() {
-      for (int k = 0; k < kPerThread; ++k) {
-        Brush b;
-        b.property = k % 2 ? Property::Stiffness : Property::Mass;
-        b.value = 1.0 + 0.01 * (k + 100 * t);
-        b.radius = 0.6;
-        queue.push(Dab{b, BrushCentre::atVertex((37 * k + 11 * t) % 256)});
-      }
-    });
-  std::vector<EditCommand> batch, applied;
-  const Points external = Points::Zero(model.mesh.numVertices(), 3);
-  while (applied.size() < static_cast<size_t>(kThreads * kPerThread)) {
-    queue.drain(batch);
-    for (const EditCommand& c : batch) {
-      const EditResult r = editor.apply(EditTarget::of(model), state, c);
-      if (r.changed) stepper.propertiesChanged(r.matrixRows);
-      applied.push_back(c);
-    }
-    stepper.step(state, external);  // a cycle between two drains
-  }
-  for (std::thread& t : producers) t.join();
-  EXPECT_EQ(queue.size(), 0u);
-  // Mass and stiffness dabs at rest store no energy: the state stayed at rest, so the
-  // replay below sees the same brush distances.
-  ASSERT_TRUE(state.position == model.mesh.positions());
-  const MatrixVerification check =
-      verifyAgainstRebuild(model, stepper.system(), stepper.transformation());
-  EXPECT_LE(check.maxAbs(), 1e-12);
-  // The same commands applied in the same order on one thread give the same model.
-  Editor replayEditor(replay.mesh, replay.angles);
-  const State rest = State::atRest(replay.mesh);
-  for (const EditCommand& c : applied) replayEditor.apply(EditTarget::of(replay), rest, c);
-  EXPECT_TRUE(identical(replay.properties, model.properties));
-}
-
 TEST(Schedule, DueEditsInTimeOrderWithListOrderForTies) {
   std::vector<TimedEdit> edits = {
       {1.0, ScaleRest{1.0}}, {0.2, Relax{}}, {1.0, Undo{}}, {2.0, Redo{}}};
@@ -788,45 +737,6 @@ TEST(Schedule, DueEditsInTimeOrderWithListOrderForTies) {
   EXPECT_TRUE(schedule.finished());
   EXPECT_THROW(EditSchedule({{-1.0, Relax{}}}), InvalidInputError);
   EXPECT_THROW(EditSchedule({{std::nan(""), Relax{}}}), InvalidInputError);
-}
-
-TEST(Schedule, SceneEditsBecomeCommands) {
-  std::vector<io::SceneEdit> scene(5);
-  scene[0].time = 0.5;
-  scene[0].brush.property = Property::Stiffness;
-  scene[0].brush.mode = io::BrushMode::Multiply;
-  scene[0].brush.value = 0.5;
-  scene[0].brush.radius = 1.25;
-  scene[0].brush.falloff = io::BrushFalloff::Sharp;
-  scene[0].brush.distance = io::BrushDistance::Euclidean;
-  scene[0].centerVertex = 30;
-  scene[1].time = 1.0;
-  scene[1].brush.property = Property::Mass;
-  scene[1].centerPoint = Vec3(2.0, 0.0, 1.0);
-  scene[2].time = 1.5;
-  scene[2].kind = io::EditKind::Global;
-  scene[2].brush.property = Property::Damping;
-  scene[2].brush.value = 0.1;
-  scene[3].time = 2.0;
-  scene[3].kind = io::EditKind::Relax;
-  scene[4].time = 0.1;
-  scene[4].kind = io::EditKind::ScaleRest;
-  scene[4].factor = 0.95;
-  const EditSchedule schedule = scheduleFromScene(scene);
-  const auto& e = schedule.edits();
-  ASSERT_EQ(e.size(), 5u);
-  EXPECT_EQ(std::get<ScaleRest>(e[0].command).factor, 0.95);  // sorted by time
-  EXPECT_EQ(e[0].source, 4u);  // where it was in the file, for messages
-  const Dab& dab = std::get<Dab>(e[1].command);
-  EXPECT_EQ(dab.centre.kind, BrushCentre::Kind::Vertex);
-  EXPECT_EQ(dab.centre.vertex, 30);
-  EXPECT_EQ(dab.brush.mode, BrushMode::Multiply);
-  EXPECT_EQ(dab.brush.falloff, Falloff::Sharp);
-  EXPECT_EQ(dab.brush.distance, DistanceKind::Euclidean);
-  EXPECT_EQ(dab.brush.radius, 1.25);
-  EXPECT_EQ(std::get<Dab>(e[2].command).centre.kind, BrushCentre::Kind::Point);
-  EXPECT_EQ(std::get<GlobalEdit>(e[3].command).brush.property, Property::Damping);
-  EXPECT_TRUE(std::holds_alternative<Relax>(e[4].command));
 }
 
 TEST(Stepper, PropertiesChangedWithTheListedRowsEqualsARebuild) {

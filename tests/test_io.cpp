@@ -21,6 +21,7 @@
 #include "zsculpt/io/isolated.h"
 #include "zsculpt/io/mesh_io.h"
 #include "zsculpt/io/scene.h"
+#include "zsculpt/io/scene_edits.h"
 #include "zsculpt/io/state_io.h"
 #include "zsculpt/mesh/builtin.h"
 
@@ -1026,6 +1027,45 @@ TEST_F(StateFile, NonFiniteStatesAreNotWritten) {
 }
 
 // ---- scene files ----------------------------------------------------------------------------
+
+TEST(SceneEdits, BecomeTheEditingModulesTimedCommands) {
+  std::vector<SceneEdit> scene(5);
+  scene[0].time = 0.5;
+  scene[0].brush.property = Property::Stiffness;
+  scene[0].brush.mode = BrushMode::Multiply;  // io's
+  scene[0].brush.value = 0.5;
+  scene[0].brush.radius = 1.25;
+  scene[0].brush.falloff = BrushFalloff::Sharp;
+  scene[0].brush.distance = BrushDistance::Euclidean;
+  scene[0].centerVertex = 30;
+  scene[1].time = 1.0;
+  scene[1].brush.property = Property::Mass;
+  scene[1].centerPoint = Vec3(2.0, 0.0, 1.0);
+  scene[2].time = 1.5;
+  scene[2].kind = EditKind::Global;
+  scene[2].brush.property = Property::Damping;
+  scene[2].brush.value = 0.1;
+  scene[3].time = 2.0;
+  scene[3].kind = EditKind::Relax;
+  scene[4].time = 0.1;
+  scene[4].kind = EditKind::ScaleRest;
+  scene[4].factor = 0.95;
+  const editing::EditSchedule schedule = scheduleFromScene(scene);
+  const auto& e = schedule.edits();
+  ASSERT_EQ(e.size(), 5u);
+  EXPECT_EQ(std::get<editing::ScaleRest>(e[0].command).factor, 0.95);  // sorted by time
+  EXPECT_EQ(e[0].source, 4u);  // where it was in the file, for messages
+  const editing::Dab& dab = std::get<editing::Dab>(e[1].command);
+  EXPECT_EQ(dab.centre.kind, editing::BrushCentre::Kind::Vertex);
+  EXPECT_EQ(dab.centre.vertex, 30);
+  EXPECT_EQ(dab.brush.mode, editing::BrushMode::Multiply);
+  EXPECT_EQ(dab.brush.falloff, editing::Falloff::Sharp);
+  EXPECT_EQ(dab.brush.distance, editing::DistanceKind::Euclidean);
+  EXPECT_EQ(dab.brush.radius, 1.25);
+  EXPECT_EQ(std::get<editing::Dab>(e[2].command).centre.kind, editing::BrushCentre::Kind::Point);
+  EXPECT_EQ(std::get<editing::GlobalEdit>(e[3].command).brush.property, Property::Damping);
+  EXPECT_TRUE(std::holds_alternative<editing::Relax>(e[4].command));
+}
 
 namespace {
 

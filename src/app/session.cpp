@@ -9,8 +9,8 @@
 #include "zsculpt/constraints/constraints.h"
 #include "zsculpt/core/errors.h"
 #include "zsculpt/core/overloaded.h"
-#include "zsculpt/editing/scene_edits.h"
 #include "zsculpt/io/mesh_io.h"
+#include "zsculpt/io/scene_edits.h"
 #include "zsculpt/physics/matrices.h"
 #include "zsculpt/render/frame.h"
 
@@ -109,7 +109,7 @@ Session::Session(SessionSetup setup)
     : setup_(std::move(setup)),
       sim_(makeSimulation(setup_)),
       editor_(sim_->model().mesh, sim_->model().angles),
-      schedule_(editing::scheduleFromScene(setup_.scene.edits)) {
+      schedule_(io::scheduleFromScene(setup_.scene.edits)) {
   const Mesh& mesh = sim_->model().mesh;
   if (setup_.initial) {
     initial_ = *setup_.initial;

@@ -10,7 +10,7 @@ namespace zsculpt::cli {
 
 TimedEdits::TimedEdits(const LoadedModel& loaded, const Simulation& sim, bool verifyMatrices)
     : source(loaded.source), verify(verifyMatrices) {
-  if (loaded.scene) schedule = editing::scheduleFromScene(loaded.scene->edits);
+  if (loaded.scene) schedule = io::scheduleFromScene(loaded.scene->edits);
   if (schedule.size()) editor.emplace(sim.model().mesh, sim.model().angles);
 }
 

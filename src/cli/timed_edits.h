@@ -8,7 +8,7 @@
 
 #include "model_options.h"
 #include "zsculpt/editing/local_update.h"
-#include "zsculpt/editing/scene_edits.h"
+#include "zsculpt/io/scene_edits.h"
 
 namespace zsculpt::cli {
 
