@@ -713,6 +713,11 @@ TEST_F(Cli, ARefusedRunMakesNoFolderAndNamesTheFlagAtFault) {
   const Result still = run("simulate builtin:dodecahedron --steps 2");
   EXPECT_EQ(still.status, 0);
   EXPECT_NE(still.out.find("(drift undefined)"), std::string::npos) << still.out;
+  // Nor has one whose angle springs hold it at rest only to rounding (1e-28 J): its "drift"
+  // was 25, a ratio of noise.
+  const Result noise = run("simulate builtin:torus --angular-stiffness 0.5 --steps 50");
+  EXPECT_EQ(noise.status, 0);
+  EXPECT_NE(noise.out.find("(drift undefined)"), std::string::npos) << noise.out;
   // A load's work and impulse are a change, not the scheme's drift: said so, with the
   // momentum's sources (a 1 N load for 4.47 s was "momentum drift 4.47").
   const Result loaded = run("simulate builtin:dodecahedron --steps 20 --force 3:0,0,1");

@@ -188,7 +188,8 @@ void Session::refreshLimits(bool tight) {
       system.omega2().size() > 0 ? system.omega2().diagonal().maxCoeff() : 0.0;
   stableLimit_ = maxDiagonal > 0.0 ? stablePeriodLimit(sim_->stepper().scheme(), 2.0 * maxDiagonal)
                                    : std::numeric_limits<double>::infinity();
-  // Gershgorin's bound is never above the tight limit. For a period above it the largest
+  // The period from Gershgorin's bound (which is never below lambda_0) is never above the
+  // tight limit. For a period above it the largest
   // eigenvalue gives the tight one, as `zsculpt simulate` does, so that both give one limit;
   // but only when the period or the model is set (`tight`): an edit keeps to the bound, since
   // the eigenvalue costs about half a second at 100k vertices and a dab must not.

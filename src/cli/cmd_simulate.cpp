@@ -95,9 +95,19 @@ int runSimulate(const SimulateOptions& options) {
     io::writeFileAtomically(options.run.csv, [&](std::ostream& out) { out << csv.str(); });
   if (!options.run.stateOut.empty()) io::saveState(run.lastGood(), options.run.stateOut);
 
-  const double energyDrift = (firstCount && lastCount && !diverged)
-                                 ? (lastSum / lastCount) / (firstSum / firstCount) - 1.0
-                                 : std::nan("");
+  // A relative drift needs an energy to be relative to: a model at rest whose angle springs
+  // hold it only to rounding has 1e-28 J, and its "drift" was 25 (a ratio of noise). Below a
+  // millionth of a millionth of the springs' energy scale (every edge stretched by its own
+  // length) the drift is undefined.
+  const Model& model = sim.model();
+  const double edge = model.mesh.numEdges() > 0 ? model.mesh.meanEdgeLength() : 0.0;
+  const double energyScale = 0.5 * model.properties.stiffness.cwiseAbs().maxCoeff() * edge * edge *
+                             static_cast<double>(model.mesh.numEdges());
+  const double firstMean = firstCount ? firstSum / firstCount : 0.0;
+  const double energyDrift =
+      (firstCount && lastCount && !diverged && std::abs(firstMean) > 1e-12 * energyScale)
+          ? (lastSum / lastCount) / firstMean - 1.0
+          : std::nan("");
   if (options.run.json) {
     std::cout << "{\n"
               << "  \"scheme\": \"" << schemeName(resolved.settings.scheme) << "\",\n"

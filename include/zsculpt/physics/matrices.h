@@ -70,7 +70,7 @@ class SystemMatrices {
 /// i.e. sqrt(6 / max_i K_ii / mu_i). Infinite when there is no stiffness.
 double criticalPeriod(const SystemMatrices& matrices);
 /// The largest eigenvalue lambda_0 of Omega^2 (symmetric form M^-1/2 K M^-1/2): dense for
-/// small models, Lanczos (Spectra) otherwise.
+/// small models, a Lanczos iteration of our own otherwise (matrices.cpp).
 double largestEigenvalue(const SystemMatrices& matrices);
 /// sqrt(12 / lambda_0): where (omega_max T)^2 = 12, the linear stability limit of equation
 /// 3's Taylor-truncated cosine and of the default scheme.
