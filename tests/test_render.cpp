@@ -492,6 +492,56 @@ TEST(Offscreen, AUniformFieldsLegendIsOneSwatchNotAScale) {
   }
 }
 
+TEST(Offscreen, FlatShadingLightsEachFaceByItsOwnPlane) {
+  // A polyhedron at level 0 drawn flat: across the face that looks at the camera the colour
+  // hardly changes (only the highlight moves with the view direction); smooth vertex normals
+  // (37 degrees off the face's at a dodecahedron's corners) shade it from light to dark. (The
+  // paper's Figure 5 shows the original mesh so, and `render --levels 0` does.)
+  const Mesh mesh = makeDodecahedron();
+  Frame frame = frameFor(mesh, -60, 25, 480, 360);
+  const Vec3 eye = frame.camera.eye();
+  Index facing = 0;
+  double best = -2.0;
+  Vec3 centre = Vec3::Zero();
+  for (Index f = 0; f < mesh.numFaces(); ++f) {
+    Vec3 c = Vec3::Zero();
+    for (const Index v : mesh.face(f)) c += mesh.positions().row(v).transpose();
+    c /= static_cast<double>(mesh.face(f).size());
+    const double cosine = c.normalized().dot((eye - c).normalized());  // centred at the origin
+    if (cosine > best) {
+      best = cosine;
+      facing = f;
+      centre = c;
+    }
+  }
+  // The range of the green channel over points inside that face: from its centre towards
+  // each corner, up to 70 % of the way.
+  std::vector<Eigen::Vector2d> inside;
+  for (const Index v : mesh.face(facing))
+    for (double t : {0.0, 0.35, 0.7}) {
+      Eigen::Vector2d pixel;
+      const Vec3 p = (1.0 - t) * centre + t * Vec3(mesh.positions().row(v).transpose());
+      ASSERT_TRUE(frame.camera.project(p, 480, 360, pixel));
+      inside.push_back(pixel);
+    }
+  auto spread = [&](const Image& image) {
+    int lo = 255, hi = 0;
+    for (const Eigen::Vector2d& at : inside) {
+      const int g = image.pixel(static_cast<int>(at.x()), static_cast<int>(at.y()))[1];
+      lo = std::min(lo, g);
+      hi = std::max(hi, g);
+    }
+    return hi - lo;
+  };
+  const Image smooth = offscreen().render(frame, 480, 360);
+  frame.display.flatShading = true;
+  const Image flat = offscreen().render(frame, 480, 360);
+  // Measured 7 flat (the highlight alone) and 51 smooth.
+  EXPECT_LE(spread(flat), 15);
+  EXPECT_GE(spread(smooth), 30);
+  EXPECT_GT(changedPixels(flat, smooth, 6), 2000);
+}
+
 TEST(Offscreen, ReferenceDodecahedronWithWireframeAndGlyphs) {
   const Mesh mesh = makeDodecahedron();
   Frame frame = frameFor(mesh, -60, 25);

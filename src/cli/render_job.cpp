@@ -143,6 +143,9 @@ RenderJobResult runRenderJob(const RenderJobOptions& o) {
   // mass, so that one set flying by its loads stays in view, and the caption says how far
   // the centre has gone.
   render::Frame frame;
+  // Asked for the control mesh itself (--levels 0): its facets, lit flat. (An automatic level
+  // 0, for a model too large to refine, keeps the smooth look.)
+  frame.display.flatShading = o.levels && *o.levels == 0;
   frame.mesh = &sim.model().mesh;
   frame.stencil = stencil.get();
   frame.positions = &sim.state().position;

@@ -81,9 +81,14 @@ int reproduceFigure5(const ReproduceOptions& options) {
   frame.camera.pitchDegrees = 25.0;
   render::frameScene(frame, static_cast<double>(kPanelWidth) / kPanelHeight, 1.3);
   frame.caption = "original mesh";
+  frame.display.flatShading = true;  // the facets as they are
   std::vector<render::Image> panels;
   panels.push_back(renderPanel(renderer, frame));
   frame.stencil = &stencil;
+  frame.display.flatShading = false;
+  // The surface passes through the control vertices, not along the cage's edges: drawn
+  // with it, the cage showed only as stubs poking through the surface.
+  frame.display.controlWireframe = false;
   frame.caption = "interpolating Doo-Sabin surface (level 2)";
   panels.push_back(renderPanel(renderer, frame));
   const std::string pngPath = options.out + "/figure5.png";

@@ -1152,6 +1152,7 @@ struct Renderer::Impl {
       gl.Uniform3f(uniform(surfaceProgram, "uBackColor"), style.backSurface.r, style.backSurface.g,
                    style.backSurface.b);
       gl.Uniform1i(uniform(surfaceProgram, "uTwoSided"), 1);
+      gl.Uniform1i(uniform(surfaceProgram, "uFlat"), show.flatShading ? 1 : 0);
       gl.Uniform1f(uniform(surfaceProgram, "uSpecular"), useScalar ? 0.18f : 0.28f);
       gl.Uniform1i(uniform(surfaceProgram, "uUseScalar"), useScalar ? 1 : 0);
       gl.Uniform1f(uniform(surfaceProgram, "uScalarMin"), static_cast<float>(scalarMin));

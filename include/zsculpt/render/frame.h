@@ -68,6 +68,9 @@ struct DisplayFlags {
   bool glyphs = true;             ///< pins, normal pins, forces, torques, markers, brush
   bool legend = true;             ///< colour bar with the scalar's name and range
   bool backgroundGradient = true;
+  /// Each polygon lit by its own plane (the control mesh as the facets it is, Figure 5's
+  /// original mesh), not by smoothed vertex normals.
+  bool flatShading = false;
 };
 
 struct Style {
