@@ -8,6 +8,7 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
+#include <map>
 #include <numbers>
 #include <random>
 #include <set>
@@ -759,11 +760,15 @@ TEST(Report, InterpolationConvergenceTable) {
   }
 }
 
-TEST(Report, EnergyAndAngularMomentum) {
-  // The paper claims energy and angular momentum are kept too. Measured here (printed for
-  // docs/subdivision.md); what provably holds is asserted elsewhere (mass, linear momentum,
-  // uniform motion). Kinetic energy 1/2 sum m |v|^2, angular momentum about the centre of
-  // mass, refined velocities S v, refined masses refinedMass(m).
+TEST(Conservation, RigidMotionsKeepTheirEnergyNearlyAndClassicLevelsNeverAddAny) {
+  // The paper claims energy and angular momentum are kept too. They are not exactly, for any
+  // linear refinement with positive masses (docs/subdivision.md); what this asserts is what
+  // the docs claim instead: a rigid rotation keeps its kinetic energy and angular momentum
+  // within 3 % through the interpolating scheme (measured 2.2e-2, 1.2e-3, 4.1e-3 at levels
+  // 1 to 3) and loses more through the classic one (7.5 to 10 %), whose averaging never adds
+  // kinetic energy (Jensen); a random field is smoothed and loses energy from level 2. The
+  // rows print the docs' table. Kinetic energy 1/2 sum m |v|^2, angular momentum about the
+  // centre of mass, refined velocities S v, refined masses refinedMass(m).
   const Mesh mesh = jittered(makeTorus(10, 10), 0.15, 1);
   const VectorX mass = randomMasses(mesh.numVertices(), 71);
   const Points x = mesh.positions();
@@ -784,23 +789,40 @@ TEST(Report, EnergyAndAngularMomentum) {
   Points random = randomPoints(x.rows(), 72);
   const Vec3 drift = random.transpose() * mass / mass.sum();
   random.rowwise() -= drift.transpose();  // zero net momentum
+  std::map<std::pair<bool, int>, double> rigidMomentum;
   for (bool interpolate : {true, false}) {
     for (int levels : {1, 2, 3}) {
       const SubdivisionStencil stencil(mesh, options(levels, interpolate, &mass));
       const VectorX m = stencil.refinedMass(mass);
       const Points xr = refine(stencil, x);
-      for (const auto& [name, v] :
-           {std::pair{"rigid rotation", &rotation}, std::pair{"random, zero momentum", &random}}) {
-        const Points vr = refine(stencil, *v);
-        const double energy = kinetic(vr, m) / kinetic(*v, mass) - 1.0;
-        const Vec3 l0 = angular(x, *v, mass);
+      for (const bool rigid : {true, false}) {
+        const Points& v = rigid ? rotation : random;
+        const Points vr = refine(stencil, v);
+        const double energy = kinetic(vr, m) / kinetic(v, mass) - 1.0;
+        const Vec3 l0 = angular(x, v, mass);
         const double momentum = (angular(xr, vr, m) - l0).norm() / l0.norm();
         std::printf("| %s | %d | %s | %+.2e | %.2e |\n", interpolate ? "interpolating" : "classic",
-                    levels, name, energy, momentum);
-        EXPECT_TRUE(std::isfinite(energy) && std::isfinite(momentum));
+                    levels, rigid ? "rigid rotation" : "random, zero momentum", energy, momentum);
+        const std::string what = std::string(interpolate ? "interpolating" : "classic") +
+                                 ", level " + std::to_string(levels) +
+                                 (rigid ? ", rigid rotation" : ", random field");
+        if (interpolate && rigid) {
+          EXPECT_LT(std::abs(energy), 0.03) << what;
+          EXPECT_LT(momentum, 0.03) << what;
+        }
+        if (!interpolate) {
+          EXPECT_LE(energy, 1e-12) << what;  // averaging never adds kinetic energy
+        }
+        if (!rigid && levels >= 2) {
+          EXPECT_LT(energy, 0.0) << what;
+        }
+        if (rigid) rigidMomentum[{interpolate, levels}] = momentum;
       }
     }
   }
+  for (int levels : {1, 2, 3})
+    EXPECT_LT(rigidMomentum[std::pair(true, levels)], rigidMomentum[std::pair(false, levels)])
+        << levels;
 }
 
 TEST(Robustness, CoincidentRefinedVerticesAreWelded) {
