@@ -132,6 +132,18 @@ State perturbed(const Model& model, double amplitude, unsigned seed) {
 
 // ---- forces ------------------------------------------------------------------------------
 
+TEST(Properties, LabelsAreWordsWithUnitsAndNamesStayIdentifiers) {
+  // Legends and panels read "rest length (m)" (they read "rest_length (m)"); scene files and
+  // --property keep the identifier.
+  EXPECT_EQ(propertyLabel(Property::RestLength), "rest length (m)");
+  EXPECT_EQ(propertyLabel(Property::AngularStiffness), "angular stiffness (N m/rad\u00b2)");
+  EXPECT_EQ(propertyLabel(Property::Rigidity), "rigidity");
+  for (const Property p : kAllProperties) {
+    EXPECT_EQ(propertyLabel(p).find('_'), std::string::npos) << propertyName(p);
+    EXPECT_EQ(propertyFromName(std::string(propertyName(p))), p);
+  }
+}
+
 TEST(Forces, RadialSpringIsMinusGradientOfItsEnergy) {
   const Vec3 ri(0.3, -0.2, 0.9), rj(1.1, 0.4, 0.2);
   Vec3 f;

@@ -1,5 +1,6 @@
 #include "zsculpt/physics/properties.h"
 
+#include <algorithm>
 #include <cmath>
 #include <numbers>
 #include <sstream>
@@ -19,7 +20,7 @@ std::string_view propertyUnit(Property property) {
     case Property::Stiffness:
       return "N/m";
     case Property::AngularStiffness:
-      return "N m/rad^2";
+      return "N m/rad\u00b2";
     case Property::Rigidity:
       return "";
     case Property::RestLength:
@@ -31,7 +32,10 @@ std::string_view propertyUnit(Property property) {
 }
 
 std::string propertyLabel(Property property) {
+  // For people (legends, panels): words, not the identifier ("rest length", not
+  // "rest_length").
   std::string label(propertyName(property));
+  std::replace(label.begin(), label.end(), '_', ' ');
   if (const std::string_view unit = propertyUnit(property); !unit.empty())
     label.append(" (").append(unit).append(")");
   return label;

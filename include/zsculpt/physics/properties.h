@@ -45,7 +45,8 @@ inline constexpr std::array<Property, 7> kAllProperties = {
 std::string_view propertyName(Property property);
 /// The SI unit of a property's values, e.g. "N/m" ("" for rigidity, which has none).
 std::string_view propertyUnit(Property property);
-/// The name with its unit for legends and plots: "stiffness (N/m)", "rigidity".
+/// The name in words with its unit, for legends and plots: "stiffness (N/m)", "rest length
+/// (m)", "rigidity".
 std::string propertyLabel(Property property);
 /// Throws InvalidInputError naming the unknown property and listing the valid ones.
 Property propertyFromName(std::string_view name);
