@@ -11,6 +11,7 @@
 #include <memory>
 #include <sstream>
 
+#include "console.h"
 #include "runaway_guard.h"
 #include "timed_edits.h"
 #include "zsculpt/app/view.h"
@@ -70,7 +71,7 @@ class ProgressBar {
   void update(double fraction, long frame, long frames) {
     if (!enabled_) return;
     const int percent = static_cast<int>(std::floor(100.0 * std::clamp(fraction, 0.0, 1.0)));
-    if (percent == last_) return;
+    if (percent == last_ && !progressLineCleared()) return;
     last_ = percent;
     constexpr int kWidth = 30;
     const int filled = percent * kWidth / 100;
@@ -78,9 +79,11 @@ class ProgressBar {
                  "##############################", kWidth - filled,
                  "..............................", percent, frame, frames);
     std::fflush(stderr);
+    progressLineDrawn(true);
   }
   void finish() {
-    if (enabled_ && last_ >= 0) std::fputc('\n', stderr);
+    if (enabled_ && last_ >= 0 && !progressLineCleared()) std::fputc('\n', stderr);
+    progressLineDrawn(false);
     last_ = -1;
   }
 

@@ -5,6 +5,7 @@
 #include <iostream>
 #include <sstream>
 
+#include "console.h"
 #include "zsculpt/core/errors.h"
 
 namespace zsculpt::cli {
@@ -37,8 +38,7 @@ bool RunawayGuard::afterStep(const Simulation& sim, long k, const Diagnostics& d
 
 void GuardedRun::tellWarnings() {
   // What a cycle found (a constraint not met, a normal let go) is told as it happens.
-  for (const std::string& warning : sim_.takeWarnings())
-    std::cerr << "zsculpt: warning: " << edits_.source << ": " << warning << "\n";
+  for (const std::string& warning : sim_.takeWarnings()) warn(edits_.source + ": " + warning);
 }
 
 bool GuardedRun::step(long k) {

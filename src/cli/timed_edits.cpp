@@ -2,8 +2,9 @@
 
 #include <algorithm>
 #include <cmath>
-#include <iostream>
+#include <sstream>
 
+#include "console.h"
 #include "zsculpt/core/errors.h"
 
 namespace zsculpt::cli {
@@ -29,10 +30,11 @@ void TimedEdits::beforeStep(Simulation& sim) {
     if (!result.changed) {
       // Said, not skipped silently: a scene's edit that does nothing is usually a brush whose
       // centre the model has left (edits_applied counts the edits that changed something).
-      std::cerr << "zsculpt: warning: " << source << ": /edits/" << edit.source
-                << " at t = " << sim.time()
-                << " s changed nothing (its brush reached no vertex, or the values were "
-                   "already there)\n";
+      std::ostringstream text;
+      text << source << ": /edits/" << edit.source << " at t = " << sim.time()
+           << " s changed nothing (its brush reached no vertex, or the values were already "
+              "there)";
+      warn(text.str());
       continue;
     }
     ++applied;
