@@ -274,14 +274,37 @@ TEST(ImageSize, ParsesWidthByHeight) {
   parseImageSize("1280x720", w, h);
   EXPECT_EQ(w, 1280);
   EXPECT_EQ(h, 720);
-  for (const char* bad :
-       {"", "1280", "x720", "1280x", "0x720", "12a0x720", "-5x10", "1280x720x3"}) {
+  for (const char* bad : {"", "1280", "x720", "1280x", "0x720", "12a0x720", "-5x10", "1280x720x3",
+                          "1x1", "63x100", "100x63"}) {
     EXPECT_THROW(parseImageSize(bad, w, h), InvalidInputError) << bad;
   }
   try {
     parseImageSize("0x5", w, h, "--size");
   } catch (const InvalidInputError& e) {
     EXPECT_EQ(std::string(e.what()).rfind("--size 0x5: ", 0), 0u) << e.what();
+  }
+  parseImageSize("64x64", w, h);
+  EXPECT_EQ(w, 64);
+}
+
+TEST(Offscreen, ALegendThatWouldCoverHalfTheImageIsLeftOut) {
+  // A narrow image: the legend, wider than half of it, hid the model and was cut off.
+  const Mesh mesh = makeTorus();
+  VectorX values = mesh.positions().col(0);
+  for (const auto& [width, drawn] : {std::pair{480, true}, std::pair{100, false}}) {
+    Frame frame = frameFor(mesh, -55, 35, width, 320);
+    frame.scalar.values = &values;
+    frame.scalar.name = "angular stiffness (N m/rad\u00b2)";
+    frame.display.legend = false;
+    const Image without = offscreen().render(frame, width, 320);
+    frame.display.legend = true;
+    const Image image = offscreen().render(frame, width, 320);
+    // What the legend changes: its panel (hundreds of pixels), or nothing when left out.
+    if (drawn) {
+      EXPECT_GT(changedPixels(image, without, 3), 500) << width;
+    } else {
+      EXPECT_EQ(changedPixels(image, without, 3), 0) << width;
+    }
   }
 }
 

@@ -1005,6 +1005,8 @@ struct Renderer::Impl {
         const double margin = 0.03 * height;
         legend.x = std::round(width - legend.canvas.width() - margin);
         legend.y = std::round(0.5 * (height - legend.canvas.height()));
+        if (legend.canvas.width() > 0.5 * width || legend.canvas.height() > 0.9 * height)
+          legend.visible = false;  // as below
         return;
       }
       double labelWidth = 0.0;
@@ -1049,6 +1051,10 @@ struct Renderer::Impl {
     const double margin = 0.03 * height;
     legend.x = std::round(width - legend.canvas.width() - margin);  // whole texels
     legend.y = std::round(0.5 * (height - legend.canvas.height()));
+    // A legend wider than half the image, or taller than it, would hide the model (and be
+    // cut off itself): a narrow or small image goes without.
+    if (legend.canvas.width() > 0.5 * width || legend.canvas.height() > 0.9 * height)
+      legend.visible = false;
   }
 
   void updateCaption(const Frame& frame, int height) {
@@ -1457,7 +1463,9 @@ void parseImageSize(std::string_view text, int& width, int& height, std::string_
   };
   const int w = number(s.substr(0, x));
   const int h = number(s.substr(x + 1));
-  if (w < 1 || h < 1) fail("width and height must be at least 1 pixel");
+  // Below 64 pixels the caption, the legend and the glyphs cover the model (a 1 x 1 frame
+  // was accepted and held nothing).
+  if (w < 64 || h < 64) fail("width and height must be at least 64 pixels");
   width = w;
   height = h;
 }
