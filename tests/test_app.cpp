@@ -995,6 +995,22 @@ std::string readText(const fs::path& p) {
     if (!fs::exists(ZSCULPT_BINARY)) GTEST_SKIP() << ZSCULPT_BINARY << " is not built"; \
   } while (false)
 
+// DIR/script_log.json of a scripted window: its probes by name and its errors in order.
+struct ScriptLog {
+  std::map<std::string, nlohmann::json> probes;
+  std::vector<std::string> errors;
+  nlohmann::json entries;
+};
+ScriptLog readScriptLog(const fs::path& dir) {
+  ScriptLog log;
+  log.entries = nlohmann::json::parse(readText(dir / "script_log.json"));
+  for (const auto& entry : log.entries) {
+    if (entry.contains("error")) log.errors.push_back(entry.at("error").get<std::string>());
+    if (entry.contains("probe")) log.probes[entry.at("probe").get<std::string>()] = entry;
+  }
+  return log;
+}
+
 // `zsculpt open ARGS --script tests/data/app/SCRIPT --screenshot-out DIR` under Xvfb, its
 // output in DIR/log.txt; the exit status (timeout's 124 if it ran past two minutes).
 int runScriptedWindow(const std::string& args, const std::string& script, const fs::path& dir) {
@@ -1016,12 +1032,10 @@ TEST(Window, ScriptedDragAndPaintUnderXvfb) {
             0)
       << readText(dir / "log.txt");
 
-  const nlohmann::json log = nlohmann::json::parse(readText(dir / "script_log.json"));
-  std::map<std::string, nlohmann::json> probes;
-  for (const auto& entry : log) {
-    EXPECT_FALSE(entry.contains("error")) << entry.dump();
-    if (entry.contains("probe")) probes[entry.at("probe").get<std::string>()] = entry;
-  }
+  ScriptLog script = readScriptLog(dir);
+  const nlohmann::json& log = script.entries;
+  std::map<std::string, nlohmann::json>& probes = script.probes;
+  EXPECT_TRUE(script.errors.empty()) << log.dump();
   for (const char* name :
        {"drag_start", "drag_held", "paint_before", "paint_after", "far_before", "far_after"})
     ASSERT_TRUE(probes.count(name)) << name;
@@ -1138,15 +1152,12 @@ TEST(Window, APressOnABoundaryVertexTakesIt) {
   const fs::path dir = tempDir("window_boundary");
   ASSERT_EQ(runScriptedWindow("builtin:grid --damping 0.05", "boundary_pick.jsonl", dir), 0)
       << readText(dir / "log.txt");
-  const nlohmann::json log = nlohmann::json::parse(readText(dir / "script_log.json"));
+  const ScriptLog script = readScriptLog(dir);
+  EXPECT_TRUE(script.errors.empty()) << script.entries.dump();
   std::map<std::string, Vec3> probes;
-  for (const auto& entry : log) {
-    EXPECT_FALSE(entry.contains("error")) << entry.dump();
-    if (entry.contains("probe")) {
-      const auto& p = entry.at("position");
-      probes[entry.at("probe").get<std::string>()] =
-          Vec3(p[0].get<double>(), p[1].get<double>(), p[2].get<double>());
-    }
+  for (const auto& [name, entry] : script.probes) {
+    const auto& p = entry.at("position");
+    probes[name] = Vec3(p[0].get<double>(), p[1].get<double>(), p[2].get<double>());
   }
   for (const char* corner : {"corner", "far_corner"}) {
     const std::string name(corner);
@@ -1167,14 +1178,10 @@ TEST(Window, APausedWaitIsSkippedAndPaintingShowsWhatItPaints) {
   const fs::path dir = tempDir("window_paused_wait");
   ASSERT_EQ(runScriptedWindow("builtin:grid --damping 0.05", "paused_wait.jsonl", dir), 0)
       << readText(dir / "log.txt");
-  const nlohmann::json log = nlohmann::json::parse(readText(dir / "script_log.json"));
-  std::vector<std::string> errors;
-  std::map<std::string, nlohmann::json> probes;
-  for (const auto& entry : log) {
-    if (entry.contains("error")) errors.push_back(entry.at("error").get<std::string>());
-    if (entry.contains("probe")) probes[entry.at("probe").get<std::string>()] = entry;
-  }
-  ASSERT_EQ(errors.size(), 2u) << log.dump();
+  ScriptLog script = readScriptLog(dir);
+  const std::vector<std::string>& errors = script.errors;
+  std::map<std::string, nlohmann::json>& probes = script.probes;
+  ASSERT_EQ(errors.size(), 2u) << script.entries.dump();
   EXPECT_NE(errors[0].find("line 1: wait_time while the solver is paused"), std::string::npos)
       << errors[0];
   EXPECT_NE(errors[1].find("line 2: wait_cycle while the solver is paused"), std::string::npos)
@@ -1203,12 +1210,9 @@ TEST(Window, ScriptedKeysAndScrollActAsTheUsersKeysDo) {
   const fs::path dir = tempDir("window_keys");
   ASSERT_EQ(runScriptedWindow("builtin:grid --damping 0.05", "keys.jsonl", dir), 0)
       << readText(dir / "log.txt");
-  const nlohmann::json log = nlohmann::json::parse(readText(dir / "script_log.json"));
-  std::map<std::string, nlohmann::json> probe;
-  for (const auto& entry : log) {
-    EXPECT_FALSE(entry.contains("error")) << entry.dump();
-    if (entry.contains("probe")) probe[entry.at("probe").get<std::string>()] = entry;
-  }
+  ScriptLog script = readScriptLog(dir);
+  EXPECT_TRUE(script.errors.empty()) << script.entries.dump();
+  std::map<std::string, nlohmann::json>& probe = script.probes;
   for (const char* name :
        {"start", "paint_tool", "painted", "undone", "redone", "radius_set", "strength_moved",
         "strength_cancelled", "zoomed", "playing", "paused", "stepped"})

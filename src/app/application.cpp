@@ -594,13 +594,19 @@ constexpr std::pair<const char*, int> kShortcutKeys[] = {
     {"b", GLFW_KEY_B},         {"p", GLFW_KEY_P},           {"n", GLFW_KEY_N},
     {"v", GLFW_KEY_V},         {"t", GLFW_KEY_T},           {"r", GLFW_KEY_R}};
 
+// "a, b, c" of name(item) over a range, for the "(valid: ...)" of an error.
+template <class Range, class Name>
+std::string joinedNames(const Range& items, Name name) {
+  std::string joined;
+  for (const auto& item : items) joined += (joined.empty() ? "" : ", ") + std::string(name(item));
+  return joined;
+}
+
 int shortcutKeyFromName(const std::string& name) {
   for (const auto& [keyName, key] : kShortcutKeys)
     if (name == keyName) return key;
-  std::string valid;
-  for (const auto& [keyName, key] : kShortcutKeys)
-    valid += (valid.empty() ? "" : ", ") + std::string(keyName);
-  throw InvalidInputError("key \"" + name + "\": not a shortcut (valid: " + valid + ")");
+  throw InvalidInputError("key \"" + name + "\": not a shortcut (valid: " +
+                          joinedNames(kShortcutKeys, [](const auto& k) { return k.first; }) + ")");
 }
 
 }  // namespace
@@ -891,21 +897,16 @@ void Window::loadScript(const std::string& path) {
         {"save_mesh", {"path"}},
         {"quit", {}}};
     const auto known = members.find(action);
-    if (known == members.end()) {
-      std::string valid;
-      for (const auto& [name, unused] : members) valid += (valid.empty() ? "" : ", ") + name;
-      throw InvalidInputError(where + ": ui: unknown action \"" + action + "\" (valid: " + valid +
-                              ")");
-    }
+    if (known == members.end())
+      throw InvalidInputError(where + ": ui: unknown action \"" + action + "\" (valid: " +
+                              joinedNames(members, [](const auto& m) { return m.first; }) + ")");
+    const std::vector<std::string>& allowed = known->second;
     for (const auto& [member, unused] : j.items()) {
-      if (member == "ui") continue;
-      const auto& allowed = known->second;
-      if (std::find(allowed.begin(), allowed.end(), member) == allowed.end()) {
-        std::string valid;
-        for (const auto& m : allowed) valid += (valid.empty() ? "" : ", ") + m;
-        throw InvalidInputError(where + ": " + action + ": unknown member \"" + member +
-                                "\" (valid: " + (valid.empty() ? "none" : valid) + ")");
-      }
+      if (member == "ui" || std::find(allowed.begin(), allowed.end(), member) != allowed.end())
+        continue;
+      const std::string valid = joinedNames(allowed, [](const std::string& m) { return m; });
+      throw InvalidInputError(where + ": " + action + ": unknown member \"" + member +
+                              "\" (valid: " + (valid.empty() ? "none" : valid) + ")");
     }
     if (action == "command") commandFromJson(j.at("command"), where + ": command");
     if (action == "tool") toolFromName(j.value("tool", std::string()));

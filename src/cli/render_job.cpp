@@ -185,8 +185,9 @@ RenderJobResult runRenderJob(const RenderJobOptions& o) {
       frame.scalar.name = propertyLabel(*property);
     }
     frame.display.legend = property.has_value();
-    if (!anchored) frame.camera.target = centreOfMass() + targetOffset;
-    const double moved = (centreOfMass() - centreAtStart).norm();
+    const Vec3 centre = centreOfMass();
+    if (!anchored) frame.camera.target = centre + targetOffset;
+    const double moved = (centre - centreAtStart).norm();
     char caption[96];
     if (!anchored && moved > 1e-3 * diagonal)
       std::snprintf(caption, sizeof caption, "t = %.2f s, centre of mass %.3g m from its start",
