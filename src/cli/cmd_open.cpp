@@ -5,6 +5,7 @@
 #include <memory>
 
 #include "commands.h"
+#include "console.h"
 #include "model_options.h"
 #include "zsculpt/app/application.h"
 #include "zsculpt/core/errors.h"
@@ -64,8 +65,7 @@ app::SessionSetup makeSetup(const OpenOptions& o) {
   if (!run.dt && !run.dtRatio && sceneAsSaved) run.allowUnstable = true;
   const RunOptions::Resolved resolved = run.resolve(loaded);
   if (!resolved.aboveStableLimit.empty() && !o.run.allowUnstable)
-    std::cerr << "zsculpt: warning: " << resolved.aboveStableLimit
-              << "; it will diverge: lower it in the Simulation panel\n";
+    warn(resolved.aboveStableLimit + "; it will diverge: lower it in the Simulation panel");
   if (o.perturb) {
     if (!(*o.perturb >= 0.0) || !std::isfinite(*o.perturb))
       throw InvalidInputError("--perturb: must be a finite number >= 0");

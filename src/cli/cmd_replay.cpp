@@ -10,6 +10,7 @@
 #include <optional>
 
 #include "commands.h"
+#include "console.h"
 #include "model_options.h"
 #include "zsculpt/app/recording.h"
 #include "zsculpt/core/errors.h"
@@ -67,9 +68,8 @@ int runReplay(const ReplayOptions& o) {
   for (size_t k = 0; k < r.notices.size();) {
     size_t same = k + 1;
     while (same < r.notices.size() && r.notices[same] == r.notices[k]) ++same;
-    std::cerr << "zsculpt: warning: " << o.recording << ": " << r.notices[k];
-    if (same - k > 1) std::cerr << " (" << same - k << " times)";
-    std::cerr << "\n";
+    warn(o.recording + ": " + r.notices[k] +
+         (same - k > 1 ? " (" + std::to_string(same - k) + " times)" : std::string()));
     k = same;
   }
   const char* match = !r.matchesRecording ? "null" : (*r.matchesRecording ? "true" : "false");

@@ -9,6 +9,7 @@
 #include <sstream>
 
 #include "commands.h"
+#include "console.h"
 #include "model_options.h"
 #include "runaway_guard.h"
 #include "timed_edits.h"
@@ -31,8 +32,7 @@ int runSimulate(const SimulateOptions& options) {
   const RunOptions::Resolved resolved = options.run.resolve(loaded);
   Simulation sim(loaded.model, resolved.settings);
   options.run.prepare(loaded, sim);
-  for (const std::string& warning : sim.takeWarnings())
-    std::cerr << "zsculpt: warning: " << loaded.source << ": " << warning << "\n";
+  for (const std::string& warning : sim.takeWarnings()) warn(loaded.source + ": " + warning);
   TimedEdits edits(loaded, sim, options.verifyMatrices);
   // Check the output folders before any work.
   for (const std::string* path : {&options.run.csv, &options.run.stateOut})

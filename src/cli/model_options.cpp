@@ -7,6 +7,7 @@
 #include <iostream>
 #include <sstream>
 
+#include "console.h"
 #include "zsculpt/core/errors.h"
 #include "zsculpt/io/state_io.h"
 #include "zsculpt/physics/matrices.h"
@@ -163,9 +164,8 @@ void warnAboutOtherFrames(const std::string& dir, std::size_t written) {
     if (name.rfind("frame_", 0) == 0 && it->path().extension() == ".png") ++frames;
   }
   if (frames > written)
-    std::cerr << "zsculpt: warning: " << dir << " holds " << frames - written
-              << " frame_*.png besides this run's " << written
-              << " (an earlier run's: clear the folder to keep only these)\n";
+    warn(dir + " holds " + std::to_string(frames - written) + " frame_*.png besides this run's " +
+         std::to_string(written) + " (an earlier run's: clear the folder to keep only these)");
 }
 
 Scheme schemeOption(const std::string& name) {

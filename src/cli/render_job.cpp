@@ -59,8 +59,8 @@ std::vector<long> frameSteps(const RenderJobOptions& o, long& steps, bool explic
   }
   // A run of fewer steps than frames asked for has a frame per step and no more.
   if (o.frames && static_cast<long>(at.size()) < *o.frames)
-    std::cerr << "zsculpt: warning: --frames " << *o.frames << ": the run has " << steps
-              << " steps, so " << at.size() << " frames (one per state)\n";
+    warn("--frames " + std::to_string(*o.frames) + ": the run has " + std::to_string(steps) +
+         " steps, so " + std::to_string(at.size()) + " frames (one per state)");
   return at;
 }
 
@@ -134,8 +134,7 @@ RenderJobResult runRenderJob(const RenderJobOptions& o) {
 
   Simulation sim(loaded.model, resolved.settings);
   o.run.prepare(loaded, sim);
-  for (const std::string& warning : sim.takeWarnings())
-    std::cerr << "zsculpt: warning: " << loaded.source << ": " << warning << "\n";
+  for (const std::string& warning : sim.takeWarnings()) warn(loaded.source + ": " + warning);
   TimedEdits edits(loaded, sim, false);
 
   // 2. The frame: the camera is framed once on the start (with its arrows), keeps that
