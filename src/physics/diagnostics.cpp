@@ -131,4 +131,20 @@ void pokeVelocity(const VectorX& mass, const Points& position, Index centre, dou
   for (Index i = 0; i < n; ++i) velocity.row(i) -= drift;
 }
 
+Vec3 weightedCentre(const VectorX& mass, const Points& x, int threads) {
+  // (sum m x, sum m)
+  const Eigen::Vector4d total =
+      sumInParts<64>(x.rows(), threads, 50000, Eigen::Vector4d(Eigen::Vector4d::Zero()),
+                     [&](Index begin, Index end, Eigen::Vector4d& sum) {
+                       Vec3 weighted = sum.head<3>();
+                       double m = sum[3];
+                       for (Index i = begin; i < end; ++i) {
+                         weighted += mass[i] * x.row(i).transpose();
+                         m += mass[i];
+                       }
+                       sum << weighted, m;
+                     });
+  return total.head<3>() / total[3];
+}
+
 }  // namespace zsculpt

@@ -194,24 +194,6 @@ void copyPoints(const Points& from, Points& to, int threads) {
   });
 }
 
-// The centre of mass sum_i m_i x_i / sum_i m_i, summed in 64 fixed parts added in order: the
-// same bits on any thread count.
-Vec3 weightedCentre(const VectorX& mass, const Points& x, int threads) {
-  // (sum m x, sum m)
-  const Eigen::Vector4d total =
-      sumInParts<64>(x.rows(), threads, 50000, Eigen::Vector4d(Eigen::Vector4d::Zero()),
-                     [&](Index begin, Index end, Eigen::Vector4d& sum) {
-                       Vec3 weighted = sum.head<3>();
-                       double m = sum[3];
-                       for (Index i = begin; i < end; ++i) {
-                         weighted += mass[i] * x.row(i).transpose();
-                         m += mass[i];
-                       }
-                       sum << weighted, m;
-                     });
-  return total.head<3>() / total[3];
-}
-
 }  // namespace
 
 void Simulation::addForce(const TimedLoad& force) {

@@ -27,6 +27,11 @@ Diagnostics measure(const Model& model, const State& state, const PotentialEnerg
 /// Kinetic energy, momentum, angular momentum about the centre of mass, without potential.
 Diagnostics measureKinematics(const VectorX& mass, const State& state);
 
+/// The mass-weighted mean sum_i m_i x_i / sum_i m_i of rows x (positions: the centre of mass;
+/// velocities: its velocity), summed in 64 fixed parts added in order: the same bits on any
+/// thread count.
+Vec3 weightedCentre(const VectorX& mass, const Points& x, int threads = 1);
+
 }  // namespace zsculpt
 
 namespace zsculpt {

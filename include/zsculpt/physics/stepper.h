@@ -333,10 +333,9 @@ class Stepper {
   Eigen::MatrixXd propagator_;  // N x 6: phi11 phi12 gamma1 phi21 phi22 gamma2
   VectorX sqrtMass_, inverseSqrtMass_;
   Eigen::MatrixXd modal1_, modal2_, modal3_;
-  // The centre of mass's propagator (the 2 x 3 of a mode with w^2 = 0) and the total mass:
-  // stepExact moves the centre of mass on its own (stepper.cpp says why).
+  // The centre of mass's propagator (the 2 x 3 of a mode with w^2 = 0): stepExact moves the
+  // centre of mass on its own (stepper.cpp says why).
   std::array<double, 6> centrePropagator_{};
-  double totalMass_ = 0.0;
 
   // Implicit Euler: A = M + h D - h^2 J (3N x 3N).
   std::unique_ptr<Implicit> implicit_;
