@@ -574,6 +574,30 @@ TEST_F(Cli, RenderWatchesAPinnedModelFromAFixedPointAndBacksAwayToKeepItInView) 
   EXPECT_FALSE(reachesTheEdge(zsculpt::render::readPng(path("sagging/frame_0000.png"))));
 }
 
+TEST_F(Cli, RenderSpacesFramesEvenlyInTimeAndEndsOnTheAskedTime) {
+  // 8 s at 0.5 T_max is 42 steps, which 23 intervals do not divide: frames alternated 1 and
+  // 2 steps apart (a video stuttered by 2x) and the run ended at 8.13 s. Now the step is
+  // shortened to fit 46 steps, two a frame, and the run ends at 8 s.
+  const Result r =
+      run("render builtin:grid:8 --time 8 --frames 24 --size 96x64 --json --out " + path("even"));
+  ASSERT_EQ(r.status, 0) << r.err;
+  const auto j = nlohmann::json::parse(r.out);
+  const auto& times = j["frame_times"];
+  ASSERT_EQ(times.size(), 24u);
+  EXPECT_NEAR(times.back().get<double>(), 8.0, 1e-12);
+  for (size_t i = 1; i < times.size(); ++i)
+    EXPECT_NEAR(times[i].get<double>() - times[i - 1].get<double>(), 8.0 / 23.0, 1e-12) << i;
+  EXPECT_EQ(j["steps"].get<long>() % 23, 0);
+  // Never a longer step than asked for (0.5 T_max), so never past the stable limit.
+  EXPECT_LE(j["dt"].get<double>(), 0.5 * j["t_max"].get<double>());
+  // An explicit step count is kept, and the uneven spacing said.
+  const Result kept = run(
+      "render builtin:grid:8 --steps 100 --frames 24 --size 96x64 --json --out " + path("kept"));
+  ASSERT_EQ(kept.status, 0) << kept.err;
+  EXPECT_EQ(nlohmann::json::parse(kept.out)["steps"].get<long>(), 100);
+  EXPECT_NE(kept.err.find("frames are 4 or 5 steps apart"), std::string::npos) << kept.err;
+}
+
 TEST_F(Cli, RenderWritesFramesOfTheAskedSizeAPlotAndTheDiagnostics) {
   const Result r = run("render builtin:torus --out " + path("out") +
                        " --frames 3 --steps 40 --size 320x200 --perturb 0.3 --seed 7 --json");

@@ -322,12 +322,16 @@ RunOptions::Resolved RunOptions::resolve(const LoadedModel& loaded) const {
   };
   if (steps) {
     r.steps = *steps;
+    r.explicitSteps = true;
   } else if (time) {
     r.steps = stepsFor(*time, "--time");
+    r.seconds = *time;
   } else if (fromScene && fromScene->steps) {
     r.steps = static_cast<long>(*fromScene->steps);
+    r.explicitSteps = true;
   } else if (fromScene && fromScene->time) {
     r.steps = stepsFor(*fromScene->time, loaded.source + ": /simulation/time");
+    r.seconds = *fromScene->time;
   }
   if (r.steps < 0) throw InvalidInputError("--steps: must not be negative");
   return r;

@@ -59,6 +59,11 @@ struct RunOptions {
     SimulationSettings settings;
     long steps = 1000;
     double tMax = 0.0;
+    /// The run's length in seconds when it was given as a time (--time, or the scene's
+    /// /simulation/time) rather than as a step count; render fits its steps to it.
+    std::optional<double> seconds;
+    /// Whether the step count was given (--steps, or the scene's /simulation/steps).
+    bool explicitSteps = false;
     /// When the period is above the scheme's stable limit (allowed by --allow-unstable, or
     /// by `open` for a scene's own step): what is wrong, naming where the step came from.
     std::string aboveStableLimit;

@@ -31,11 +31,17 @@ constexpr long kMaxFrames = 100000;
 
 /// The steps at which frames are taken: with --every K, 0, K, 2K ... up to the run's end
 /// (at most --frames of them); otherwise --frames (default 30) spread evenly over the run,
-/// the first at the rest state and the last at its end.
-std::vector<long> frameSteps(const RenderJobOptions& o, long& steps, bool explicitLength) {
+/// the first at the rest state and the last at its end. Evenly means a whole number of
+/// steps apart: a run given as a time takes a step count that the frames divide, with the
+/// step shortened to fit (never lengthened, so never past the stable limit), and so ends on
+/// that time; a run of the default length is lengthened to the next such count. A step
+/// count given explicitly is kept, with a warning when the frames cannot divide it.
+std::vector<long> frameSteps(const RenderJobOptions& o, RunOptions::Resolved& run,
+                             bool explicitLength) {
   if (o.frames && (*o.frames < 1 || *o.frames > kMaxFrames))
     throw InvalidInputError("--frames: must be between 1 and " + std::to_string(kMaxFrames));
   if (o.every && *o.every < 1) throw InvalidInputError("--every: must be at least 1");
+  long& steps = run.steps;
   std::vector<long> at;
   if (o.every) {
     const long k = *o.every;
@@ -52,9 +58,27 @@ std::vector<long> frameSteps(const RenderJobOptions& o, long& steps, bool explic
   }
   const long n = o.frames.value_or(kDefaultFrames);
   if (n == 1) return {steps};
+  const long intervals = n - 1;
+  if (steps >= intervals && steps % intervals != 0) {
+    if (run.seconds && *run.seconds > 0.0) {
+      long fitted = (steps + intervals - 1) / intervals * intervals;
+      while (*run.seconds / static_cast<double>(fitted) > run.settings.period) fitted += intervals;
+      steps = fitted;
+      run.settings.period = *run.seconds / static_cast<double>(fitted);
+    } else if (!run.explicitSteps) {
+      steps = (steps + intervals - 1) / intervals * intervals;
+    } else {
+      const long apart = steps / intervals;
+      warn("--frames " + std::to_string(n) + ": " + std::to_string(steps) +
+           " steps do not divide into " + std::to_string(intervals) +
+           " equal intervals, so frames are " + std::to_string(apart) + " or " +
+           std::to_string(apart + 1) + " steps apart (--steps " +
+           std::to_string((apart + 1) * intervals) + " or --time would space them evenly)");
+    }
+  }
   for (long f = 0; f < n; ++f) {
     const long s = static_cast<long>(std::llround(
-        static_cast<double>(f) * static_cast<double>(steps) / static_cast<double>(n - 1)));
+        static_cast<double>(f) * static_cast<double>(steps) / static_cast<double>(intervals)));
     if (at.empty() || s != at.back()) at.push_back(s);
   }
   // A run of fewer steps than frames asked for has a frame per step and no more.
@@ -112,13 +136,12 @@ RenderJobResult runRenderJob(const RenderJobOptions& o) {
   renderer.checkSize(result.width, result.height, "--size");
 
   const LoadedModel loaded = o.model.load();
-  const RunOptions::Resolved resolved = o.run.resolve(loaded);
+  RunOptions::Resolved resolved = o.run.resolve(loaded);
   const bool explicitLength =
       o.run.steps || o.run.time ||
       (loaded.scene && (loaded.scene->simulation.steps || loaded.scene->simulation.time));
-  long steps = resolved.steps;
-  const std::vector<long> frameAt = frameSteps(o, steps, explicitLength);
-  steps = std::max(steps, frameAt.back());
+  const std::vector<long> frameAt = frameSteps(o, resolved, explicitLength);
+  const long steps = std::max(resolved.steps, frameAt.back());
   result.steps = steps;
   result.period = resolved.settings.period;
   result.tMax = resolved.tMax;
@@ -243,6 +266,7 @@ RenderJobResult runRenderJob(const RenderJobOptions& o) {
     if (backAway) render::keepSceneInView(frame, aspect, 1.25, viewPoints, viewRefined);
     renderer.renderPng(frame, result.width, result.height, path);
     result.frames.push_back(path);
+    result.frameTimes.push_back(sim.time());
   };
 
   ProgressBar progress(o.progress);
@@ -294,6 +318,9 @@ int reportRenderJob(const RenderJobOptions& o, const RenderJobResult& r,
     std::cout << "{\n  \"frames\": [";
     for (size_t i = 0; i < r.frames.size(); ++i)
       std::cout << (i ? ", " : "") << '"' << r.frames[i] << '"';
+    std::cout << "],\n  \"frame_times\": [";
+    for (size_t i = 0; i < r.frameTimes.size(); ++i)
+      std::cout << (i ? ", " : "") << jsonNumber(r.frameTimes[i]);
     std::cout << "],\n"
               << "  \"diagnostics\": \"" << r.diagnostics << "\",\n"
               << "  \"plot\": \"" << r.plot << "\",\n"

@@ -26,6 +26,7 @@ struct RenderJobOptions {
 
 struct RenderJobResult {
   std::vector<std::string> frames;
+  std::vector<double> frameTimes;  ///< the simulated time of each frame, in seconds
   std::string diagnostics, plot, stateOut;
   long steps = 0;
   double period = 0.0, tMax = 0.0, wallSeconds = 0.0;
