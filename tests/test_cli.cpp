@@ -673,6 +673,11 @@ TEST_F(Cli, ARefusedRunMakesNoFolderAndNamesTheFlagAtFault) {
   expectOneLineError(
       run("subdivide builtin:torus:1024:1024 --levels 8 --out " + path("deep/x.obj")), 2,
       "--levels: 8 levels of this 1048576-vertex mesh");
+  // Refused from the estimate, before any work (it used to build 7 levels, 2 GB and 4.5 s,
+  // first), naming the levels that fit: 1156 corners x 4^6 is 4.7 M vertices at level 7.
+  expectOneLineError(run("subdivide builtin:grid --levels 8 --out " + path("deep/g.obj")), 2,
+                     "would make about 18.9 million vertices (about 29 GB), more than the "
+                     "4194304 allowed; at most 6 levels fit");
   expectOneLineError(run("simulate builtin:dodecahedron --mass 1e-320 --steps 2 --state-out " +
                          path("tiny/s.csv")),
                      2, "builtin:dodecahedron: equation 5's critical period T_max is 0 s");

@@ -411,6 +411,13 @@ TEST(Solid, LatticeSubdividesItsBoundarySurface) {
   EXPECT_GT(signedVolume(stencil.refinedFaces(), refined), 0.0);
   const Index inside = 1 + 3 + 9;
   EXPECT_EQ(refined.row(stencil.controlToRefined()[inside]), lattice.positions().row(inside));
+  // The mesh exported and drawn is the surface alone: the interior vertex, which no face
+  // uses, is left out (it was written as a stray point that mesh checkers flag).
+  const Mesh surface = subdivide(lattice, SubdivisionOptions{});
+  EXPECT_EQ(surface.numVertices(), 8 * edges);
+  std::vector<char> used(static_cast<size_t>(surface.numVertices()), 0);
+  for (Index v : surface.faces().indices) used[v] = 1;
+  EXPECT_EQ(std::count(used.begin(), used.end(), 1), surface.numVertices());
 }
 
 TEST(NonManifold, FinsStayInTheirPlanesAndKeepTheSpine) {

@@ -8,17 +8,8 @@
 namespace zsculpt::app {
 
 int affordableLevels(const Mesh& mesh, int wanted, Index maxRefinedVertices) {
-  // Doo-Sabin: one vertex per face corner, so level 1 has sum of face sizes vertices and
-  // every further level about four times as many (all faces become quads or keep their
-  // size); estimate without building anything.
-  double count = static_cast<double>(mesh.faces().indices.size());
-  if (count == 0) count = 2.0 * mesh.numEdges();  // curves: Chaikin doubles the points
-  int levels = 0;
-  while (levels < wanted && count <= static_cast<double>(maxRefinedVertices)) {
-    ++levels;
-    count *= 4.0;
-  }
-  return levels;
+  // Estimated without building anything (subdivision.h), as the stencil refuses.
+  return levelsWithin(mesh, wanted, static_cast<double>(maxRefinedVertices));
 }
 
 void applyCameraSettings(const io::CameraSettings& s, render::Camera& camera) {

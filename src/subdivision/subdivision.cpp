@@ -5,6 +5,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdio>
 #include <string>
 
 #include "zsculpt/core/errors.h"
@@ -45,12 +46,39 @@ void validateMass(const Mesh& control, const VectorX& mass) {
 
 }  // namespace
 
+double estimatedRefinedVertices(const Mesh& control, int levels) {
+  if (levels <= 0) return static_cast<double>(control.numVertices());
+  const bool surface = control.numFaces() > 0;
+  const double first = surface ? static_cast<double>(control.faces().indices.size())
+                               : 2.0 * static_cast<double>(control.numEdges());
+  return first * std::pow(surface ? 4.0 : 2.0, levels - 1);
+}
+
+int levelsWithin(const Mesh& control, int wanted, double maxRefinedVertices) {
+  int levels = 0;
+  while (levels < wanted && estimatedRefinedVertices(control, levels + 1) <= maxRefinedVertices)
+    ++levels;
+  return levels;
+}
+
 SubdivisionStencil::SubdivisionStencil(const Mesh& control, const SubdivisionOptions& options)
     : levels_(options.levels), numControl_(control.numVertices()) {
   if (options.levels < 0 || options.levels > kMaxLevels)
     throw InvalidInputError("levels: " + std::to_string(options.levels) + " is outside [0, " +
                             std::to_string(kMaxLevels) + "]");
   if (options.mass) validateMass(control, *options.mass);
+  // Refuse up front, before any work, what would not fit, naming the levels that would.
+  const double estimate = estimatedRefinedVertices(control, levels_);
+  if (estimate > options.maxRefinedVertices) {
+    const int fit = levelsWithin(control, levels_, options.maxRefinedVertices);
+    char text[320];
+    std::snprintf(text, sizeof text,
+                  "levels: %d levels of this %lld-vertex mesh would make about %.3g million "
+                  "vertices (about %.2g GB), more than the %.0f allowed; at most %d level%s fit",
+                  levels_, static_cast<long long>(numControl_), estimate / 1e6,
+                  estimate * 1536.0 / 1e9, options.maxRefinedVertices, fit, fit == 1 ? "" : "s");
+    throw InvalidInputError(text);
+  }
   auto tooLarge = [&] {
     return InvalidInputError("levels: " + std::to_string(levels_) + " levels of this " +
                              std::to_string(numControl_) + "-vertex mesh would exceed " +
@@ -62,15 +90,6 @@ SubdivisionStencil::SubdivisionStencil(const Mesh& control, const SubdivisionOpt
   topology.faces = control.faces();
   const bool surface = control.numFaces() > 0;
   if (!surface) topology.curveEdges = control.edges();
-
-  // Refuse up front what would not fit: the first level gives about one vertex per face
-  // corner (surfaces) or two per edge (curves), each later level about 4 (or 2) times more.
-  {
-    const double first = surface ? static_cast<double>(topology.faces.indices.size())
-                                 : 2.0 * static_cast<double>(topology.curveEdges.size());
-    const double estimate = levels_ == 0 ? 0.0 : first * std::pow(surface ? 4.0 : 2.0, levels_ - 1);
-    if (estimate > static_cast<double>(kMaxRefinedVertices)) throw tooLarge();
-  }
 
   VectorX mass;
   if (options.mass) mass = *options.mass;
@@ -328,12 +347,45 @@ void weldZeroLengthEdges(Points& positions, std::vector<std::vector<Index>>& fac
   edges.erase(std::unique(edges.begin(), edges.end()), edges.end());
 }
 
+/// Drops the vertices no face or edge uses (a solid's interior, carried unchanged by the
+/// stencil): the smooth surface is what is exported and drawn, and mesh checkers, printers
+/// and engines flag stray points. The rest keep their order. A cloud of bare points (no
+/// face, no edge) is its own refinement, and is kept.
+void dropUnusedVertices(Points& positions, std::vector<std::vector<Index>>& faces,
+                        std::vector<std::array<Index, 2>>& edges) {
+  if (faces.empty() && edges.empty()) return;
+  const Index n = static_cast<Index>(positions.rows());
+  std::vector<Index> index(static_cast<size_t>(n), -1);
+  for (const auto& face : faces)
+    for (Index v : face) index[v] = 0;
+  for (const auto& [a, b] : edges) index[a] = index[b] = 0;
+  Index next = 0;
+  for (Index v = 0; v < n; ++v)
+    if (index[v] == 0) {
+      index[v] = next;
+      if (next != v) positions.row(next) = positions.row(v);
+      ++next;
+    }
+  if (next == n) return;
+  positions.conservativeResize(next, 3);
+  for (auto& face : faces)
+    for (Index& v : face) v = index[v];
+  for (auto& [a, b] : edges) {
+    a = index[a];
+    b = index[b];
+  }
+}
+
 }  // namespace
 
 Mesh subdivide(const Mesh& control, const SubdivisionOptions& options) {
   const SubdivisionStencil stencil(control, options);
   Points refined(stencil.numRefinedVertices(), 3);
   stencil.apply(control.positions(), refined);
+  return refinedMesh(stencil, std::move(refined));
+}
+
+Mesh refinedMesh(const SubdivisionStencil& stencil, Points refined) {
   const CsrIndex& faces = stencil.refinedFaces();
   std::vector<std::vector<Index>> polygons(static_cast<size_t>(faces.rows()));
   for (Index f = 0; f < faces.rows(); ++f)
@@ -341,6 +393,7 @@ Mesh subdivide(const Mesh& control, const SubdivisionOptions& options) {
   std::vector<std::array<Index, 2>> edges;
   if (faces.rows() == 0) edges = stencil.refinedEdges();
   weldZeroLengthEdges(refined, polygons, edges);
+  dropUnusedVertices(refined, polygons, edges);
   return Mesh(std::move(refined), polygons, edges);
 }
 

@@ -42,7 +42,19 @@ struct SubdivisionOptions {
   /// that total mass and linear momentum carried to the refined mesh equal the original.
   /// Without masses the weights are the classic (geometric) masks.
   const VectorX* mass = nullptr;
+  /// Levels whose estimated refined vertices (estimatedRefinedVertices) exceed this are
+  /// refused up front, before any work. The default, 2^22, is about 6.5 GB at the peak of
+  /// about 1.5 KB a refined vertex that `zsculpt subdivide` measures (docs/subdivision.md).
+  double maxRefinedVertices = 4194304.0;
 };
+
+/// About how many vertices `levels` levels of the scheme make from `control`, without
+/// building anything: one per face corner at the first level and four times as many at each
+/// later one (exact for a closed mesh), or for a curve two per edge, doubling.
+double estimatedRefinedVertices(const Mesh& control, int levels);
+
+/// The most levels, at most `wanted`, whose estimate stays within `maxRefinedVertices`.
+int levelsWithin(const Mesh& control, int wanted, double maxRefinedVertices);
 
 /// How a control vertex is reached at the last level: the (mass-weighted) centroid of a
 /// refined face, the (mass-weighted) midpoint of a refined feature segment, or a refined
@@ -114,10 +126,15 @@ class SubdivisionStencil {
 };
 
 /// One-call form: the refined mesh at the control mesh's current positions. Its vertices
-/// are the stencil's refined vertices, except on degenerate input (e.g. two faces on the
-/// same vertices), where refined vertices joined by an edge coincide: those are merged
-/// (Mesh has no zero-length edge) and faces left degenerate are dropped.
+/// are the stencil's refined vertices that a face or edge uses, in order: a solid's
+/// interior vertices, which the stencil carries unchanged, are left out of the surface.
+/// On degenerate input (e.g. two faces on the same vertices) refined vertices joined by an
+/// edge coincide: those are merged (Mesh has no zero-length edge) and faces left
+/// degenerate are dropped.
 Mesh subdivide(const Mesh& control, const SubdivisionOptions& options);
+
+/// The same mesh from a stencil already built and its refined positions (stencil.apply).
+Mesh refinedMesh(const SubdivisionStencil& stencil, Points refined);
 
 /// Normals by a best-plane (least-squares) fit of each vertex's one-ring in `faces`
 /// (paper section 3), oriented consistently with the faces' winding. `normals` must have
