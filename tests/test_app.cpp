@@ -496,6 +496,47 @@ TEST(Session, PaintingStifferKeepsThePeriodAtItsFractionOfTMaxAndTheRunFinite) {
   EXPECT_TRUE(notices.empty());
 }
 
+TEST(Session, AModelFallingFarIsNotADivergence) {
+  // The window used to call a vertex beyond 1e4 model sizes a divergence: a model falling
+  // freely under gravity was rolled back and paused after a while. The policy is now the
+  // command line's (divergence_guard.h): energy, which a free fall conserves.
+  Session session(gridSetup(6, 0.5));
+  session.apply(Play{});
+  session.apply(SetGravity{Vec3(0.0, 0.0, -1e4)});
+  const double size = session.simulation().model().mesh.boundingBox().diagonal();
+  int cycles = 0;
+  for (; cycles < 20000; ++cycles) {
+    ASSERT_EQ(session.advance(), Session::Outcome::Stepped) << cycles;
+    if (session.state().position.cwiseAbs().maxCoeff() > 3e4 * size) break;
+  }
+  EXPECT_LT(cycles, 20000) << "it did not fall far enough to test";
+  EXPECT_TRUE(session.running());
+}
+
+TEST(Session, ARunawayEnergyIsADivergenceBeforeTheModelFliesApart) {
+  // The paper's scheme at 1.06 T_max, above its stable limit: its energy grows. The
+  // energy criterion catches it while the model is still near its size; the old criterion
+  // waited for a vertex 1e4 model sizes away.
+  SessionSetup setup = gridSetup(6, 0.5);
+  setup.scene.simulation.perturb = 0.01;
+  Session session(std::move(setup));
+  session.apply(Play{});
+  session.apply(SetTimeStep{Scheme::Paper, 1.06 * session.tMax()});
+  const double size = session.simulation().model().mesh.boundingBox().diagonal();
+  double farthest = 0.0;
+  Session::Outcome outcome = Session::Outcome::Stepped;
+  for (int k = 0; k < 100000 && outcome == Session::Outcome::Stepped; ++k) {
+    outcome = session.advance();
+    if (outcome == Session::Outcome::Stepped)
+      farthest = std::max(farthest, session.state().position.cwiseAbs().maxCoeff());
+  }
+  ASSERT_EQ(outcome, Session::Outcome::Diverged);
+  EXPECT_NE(session.lastDivergence()->message.find("the energy ran away"), std::string::npos)
+      << session.lastDivergence()->message;
+  EXPECT_LT(farthest, 100.0 * size);
+  EXPECT_LT(session.lastDivergence()->rolledBackTo, session.lastDivergence()->time);
+}
+
 TEST(Session, DivergenceRollsBackPausesAndSaysSo) {
   // Forty stable cycles, then 150 times the stable period of the default scheme: even split
   // into the most steps a cycle takes when the motion is fast (kMaxSubsteps = 64), a step is

@@ -140,11 +140,7 @@ Session::Session(SessionSetup setup)
 
   addSceneConstraints();
 
-  checkpoints_[0] = initial_;
-  checkpoints_[1] = initial_;
-  const BoundingBox box = mesh.boundingBox();
-  sizeLimit_ = kDivergenceScale * std::max({box.diagonal(), box.min.cwiseAbs().maxCoeff(),
-                                            box.max.cwiseAbs().maxCoeff(), 1.0});
+  guard_ = std::make_unique<DivergenceGuard>(*sim_);
   region_ = editing::BrushRegion(mesh);
   refreshLimits(true);
   if (std::isfinite(tMax_) && tMax_ > 0.0) periodFraction_ = sim_->period() / tMax_;
@@ -237,6 +233,7 @@ bool Session::takeStepRequest() {
 }
 
 void Session::apply(const Command& command) {
+  diagnosticsFresh_ = false;
   const Index n = sim_->model().mesh.numVertices();
   auto checkVertex = [n](Index v, const char* what) {
     if (v < 0 || v >= n)
@@ -259,8 +256,7 @@ void Session::apply(const Command& command) {
                    endDrag();
                    sim_->clearConstraints();
                    addSceneConstraints();
-                   checkpoints_[0] = initial_;
-                   checkpoints_[1] = initial_;
+                   guard_->restart(*sim_);
                  },
                  [&](const SetTimeStep& s) {
                    if (s.scheme == sim_->stepper().scheme() && s.period == sim_->period()) return;
@@ -273,6 +269,7 @@ void Session::apply(const Command& command) {
                    checkFinite(g.gravity, "gravity");
                    sim_->mutableProperties().gravity = g.gravity;
                    sim_->propertiesChanged({});
+                   guard_->rebase();  // the gravity's potential energy changed
                    unsaved_ = true;
                  },
                  [&](const SetStiffnessCap& c) {
@@ -280,11 +277,13 @@ void Session::apply(const Command& command) {
                      throw InvalidInputError("stiffness cap: must be positive (infinity: none)");
                    sim_->mutableProperties().stiffnessCap = c.cap;
                    sim_->allPropertiesChanged();
+                   guard_->rebase();
                    refreshLimits();
                    keepPeriodFraction();
                    unsaved_ = true;
                  },
                  [&](const Edit& e) {
+                   guard_->rebase();  // a property edit changes the stored energy
                    const editing::EditTarget target{sim_->model().mesh, sim_->model().angles,
                                                     sim_->mutableProperties()};
                    // The simulation takes the new values before the edit enters the history; if it
@@ -469,23 +468,8 @@ void Session::apply(const Command& command) {
 
 // ---- the cycle --------------------------------------------------------------------------------
 
-void Session::takeCheckpoint() {
-  // Overwrite the older slot: the other one stays at least one interval old.
-  const int slot = 1 - newestCheckpoint_;
-  checkpoints_[slot].position = sim_->state().position;
-  checkpoints_[slot].velocity = sim_->state().velocity;
-  checkpoints_[slot].time = sim_->state().time;
-  checkpointCycle_[slot] = cycle_;
-  newestCheckpoint_ = slot;
-}
-
-bool Session::blownUp() const {
-  const State& s = sim_->state();
-  return !(s.position.cwiseAbs().maxCoeff() <= sizeLimit_);
-}
-
 Session::Outcome Session::advance() {
-  if (cycle_ % kCheckpointInterval == 0) takeCheckpoint();
+  guard_->beforeStep(*sim_, cycle_);
   const double now = sim_->time();
   // Timed edits of the scene that are due (a millionth of a period absorbs the rounding of
   // the accumulated time, as the command line does).
@@ -508,19 +492,21 @@ Session::Outcome Session::advance() {
   ++cycle_;
   for (std::string& w : sim_->takeWarnings()) notices_.push_back(std::move(w));
   if (!diverged) {
-    if (blownUp()) {
+    diagnostics_ = sim_->diagnostics();
+    diagnosticsFresh_ = true;
+    if (!guard_->afterStep(*sim_, diagnostics_)) {
       diverged = true;
-      reason = "a vertex flew beyond " + std::to_string(static_cast<long long>(kDivergenceScale)) +
-               " model sizes";
+      reason = guard_->reason();
     }
   }
   if (!diverged) return Outcome::Stepped;
 
   // Roll back to the older checkpoint: the newer one may already be on its way out.
   const double at = sim_->time();
-  const State& good = checkpoints_[1 - newestCheckpoint_];
-  sim_->setState(good);
-  checkpoints_[newestCheckpoint_] = good;
+  sim_->setState(guard_->lastGood());
+  diagnosticsFresh_ = false;
+  guard_->restart(*sim_);
+  const State& good = sim_->state();
   endDrag();
   running_ = false;
   ++divergences_;
@@ -556,7 +542,11 @@ void Session::fill(Snapshot& out, Property scalarProperty) {
   }
   out.scalarProperty = scalarProperty_;
   out.scalar = scalar_;
-  out.diagnostics = sim_->diagnostics();
+  if (!diagnosticsFresh_) {
+    diagnostics_ = sim_->diagnostics();
+    diagnosticsFresh_ = true;
+  }
+  out.diagnostics = diagnostics_;
   out.pins.clear();
   out.normalPins.clear();
   for (const Constraint& c : sim_->constraints().constraints()) {

@@ -10,10 +10,10 @@
 // divergence check. cycle() counts the steps taken since the session started (a reset does
 // not rewind it): recordings key commands by it.
 //
-// Divergence (state non-finite, or a vertex beyond kDivergenceScale model sizes): the
-// session rolls back to a checkpoint taken at least kCheckpointInterval cycles earlier,
-// reports it (advance() returns Diverged, lastDivergence() says when and where to), and the
-// caller pauses.
+// Divergence (a non-finite state or energy, or runaway energy: the policy the command line
+// shares, simulation/divergence_guard.h): the session rolls back to a checkpoint taken at
+// least DivergenceGuard::kCheckpointEvery cycles earlier, reports it (advance() returns
+// Diverged, lastDivergence() says when and where to), and the caller pauses.
 
 #include <cstdint>
 #include <memory>
@@ -25,6 +25,7 @@
 #include "zsculpt/editing/editor.h"
 #include "zsculpt/editing/schedule.h"
 #include "zsculpt/io/scene.h"
+#include "zsculpt/simulation/divergence_guard.h"
 #include "zsculpt/simulation/simulation.h"
 
 namespace zsculpt::app {
@@ -111,9 +112,6 @@ struct Divergence {
 
 class Session {
  public:
-  static constexpr std::uint64_t kCheckpointInterval = 32;
-  static constexpr double kDivergenceScale = 1e4;
-
   /// Builds the model and the simulation. Throws InvalidInputError (scene or settings).
   explicit Session(SessionSetup setup);
   ~Session();
@@ -171,8 +169,6 @@ class Session {
   void keepPeriodFraction();
   void addSceneConstraints();
   void endDrag();
-  void takeCheckpoint();
-  [[nodiscard]] bool blownUp() const;
   [[nodiscard]] bool isDragConstraint(const Constraint& c) const {
     return dragOwnsConstraint_ && c.id == dragId_;
   }
@@ -196,11 +192,11 @@ class Session {
   editing::BrushRegion region_;  // pin brush
   std::vector<std::string> notices_;
 
-  // Checkpoints for divergence: two slots, the older one is restored.
-  State checkpoints_[2];
-  std::uint64_t checkpointCycle_[2] = {0, 0};
-  int newestCheckpoint_ = 0;
-  double sizeLimit_ = 0.0;
+  std::unique_ptr<DivergenceGuard> guard_;  // with its checkpoints
+  // The diagnostics of the last cycle, which the guard took; a snapshot reuses them until a
+  // command changes the model or state.
+  Diagnostics diagnostics_;
+  bool diagnosticsFresh_ = false;
   std::optional<Divergence> divergence_;
   std::uint64_t divergences_ = 0;
 

@@ -1,0 +1,77 @@
+#include "zsculpt/simulation/divergence_guard.h"
+
+#include <algorithm>
+#include <cmath>
+#include <sstream>
+
+namespace zsculpt {
+
+namespace {
+
+void copyInto(State& slot, const State& state) {
+  slot.position = state.position;  // same size after the first copy: no allocation
+  slot.velocity = state.velocity;
+  slot.time = state.time;
+}
+
+}  // namespace
+
+DivergenceGuard::DivergenceGuard(const Simulation& sim) {
+  restart(sim);
+}
+
+void DivergenceGuard::restart(const Simulation& sim) {
+  const Diagnostics d = sim.diagnostics();
+  start_ = d.total();
+  inflow_ = 0.0;
+  maxKinetic_ = d.kinetic;
+  rebase_ = false;
+  copyInto(slots_[0], sim.state());
+  copyInto(slots_[1], sim.state());
+  slotCycle_[0] = slotCycle_[1] = 0;
+  newest_ = 0;
+  reason_.clear();
+}
+
+void DivergenceGuard::addEnergy(double joules) {
+  inflow_ += std::abs(joules);
+}
+
+void DivergenceGuard::beforeStep(const Simulation& sim, std::uint64_t cycle) {
+  if (cycle == 0 || cycle % kCheckpointEvery != 0) return;
+  newest_ = 1 - newest_;
+  copyInto(slots_[newest_], sim.state());
+  slotCycle_[newest_] = cycle;
+}
+
+bool DivergenceGuard::afterStep(const Simulation& sim, const Diagnostics& diagnostics) {
+  const double energy = diagnostics.total();
+  if (!std::isfinite(energy)) {
+    reason_ = "the energy became non-finite";
+    return false;
+  }
+  if (rebase_) {
+    start_ = energy;
+    inflow_ = 0.0;
+    maxKinetic_ = diagnostics.kinetic;
+    rebase_ = false;
+    return true;
+  }
+  // Work of the loads and of the constraints over this cycle, counted in absolute value: the
+  // scale of energy moved in and out.
+  inflow_ += std::abs(sim.loadWork()) + std::abs(sim.constraintWork());
+  const double bound = start_ + kEnergyFactor * (std::abs(start_) + inflow_) + maxKinetic_ + 1e-12;
+  maxKinetic_ = std::max(maxKinetic_, diagnostics.kinetic);
+  if (!(energy <= bound)) {
+    std::ostringstream msg;
+    msg.precision(4);
+    msg << "the energy ran away: " << energy << " J, more than " << kEnergyFactor
+        << " times the start energy " << start_ << " J plus the work put in, " << inflow_
+        << " J, plus the largest kinetic energy before it";
+    reason_ = msg.str();
+    return false;
+  }
+  return true;
+}
+
+}  // namespace zsculpt
