@@ -15,6 +15,7 @@
 #include <random>
 #include <set>
 #include <sstream>
+#include <tuple>
 
 #include "zsculpt/core/errors.h"
 #include "zsculpt/io/atomic_file.h"
@@ -590,9 +591,11 @@ TEST(MeshImport, TheImportProcessGivesTheMeshOfAReadHere) {
     EXPECT_EQ(a.edges(), b.edges());
     EXPECT_EQ(
         std::tie(isolated.meshesMerged, isolated.verticesWelded, isolated.degenerateFacesDropped,
-                 isolated.pointsAndLinesDropped, isolated.unusedVerticesDropped),
+                 isolated.pointsAndLinesDropped, isolated.unusedVerticesDropped,
+                 isolated.facesReversed, isolated.nonOrientableComponents),
         std::tie(here.meshesMerged, here.verticesWelded, here.degenerateFacesDropped,
-                 here.pointsAndLinesDropped, here.unusedVerticesDropped));
+                 here.pointsAndLinesDropped, here.unusedVerticesDropped, here.facesReversed,
+                 here.nonOrientableComponents));
   }
   fs::remove_all(dir);
 }
@@ -1477,4 +1480,46 @@ TEST_F(SceneFile, FileErrors) {
   EXPECT_THROW(saveScene(parseScene(kMinimal, ""), path("bad.json/s.json")), IOError);  // a file
   EXPECT_TRUE(isSceneFileName("a/b.JSON"));
   EXPECT_FALSE(isSceneFileName("a/b.obj"));
+}
+
+// A downloaded cube with one face wound the wrong way, and one wound inward throughout: the
+// import turns them so that the subdivision sees one smooth sheet (a reversed face made its
+// four edges creases) and the outside faces out; `info` reports it.
+class MeshOrientation : public TempDir {};
+
+TEST_F(MeshOrientation, ImportWindsFacesAsTheirNeighboursAndClosedModelsOutward) {
+  const std::string corners =
+      "v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nv 0 0 1\nv 1 0 1\nv 1 1 1\nv 0 1 1\n";
+  const std::string outward = "f 1 4 3 2\nf 5 6 7 8\nf 1 2 6 5\nf 3 4 8 7\nf 2 3 7 6\nf 1 5 8 4\n";
+  const std::string oneFlipped =
+      "f 1 4 3 2\nf 5 6 7 8\nf 1 2 6 5\nf 7 8 4 3\nf 2 3 7 6\nf 1 5 8 4\n";
+  const std::string inward = "f 2 3 4 1\nf 8 7 6 5\nf 5 6 2 1\nf 7 8 4 3\nf 6 7 3 2\nf 4 8 5 1\n";
+  auto volume = [](const Mesh& m) {
+    double v = 0.0;
+    for (Index f = 0; f < m.numFaces(); ++f) {
+      const auto face = m.face(f);
+      for (size_t k = 1; k + 1 < face.size(); ++k)
+        v += m.positions().row(face[0]).dot(
+                 m.positions().row(face[k]).cross(m.positions().row(face[k + 1]))) /
+             6.0;
+    }
+    return v;
+  };
+  for (const auto& [name, faces, reversed] :
+       {std::tuple{"outward.obj", outward, 0}, std::tuple{"one_flipped.obj", oneFlipped, 1},
+        std::tuple{"inward.obj", inward, 6}}) {
+    writeText(path(name), corners + faces);
+    MeshLoadReport report;
+    const Mesh cube = loadMesh(path(name), &report);
+    EXPECT_EQ(report.facesReversed, reversed) << name;
+    EXPECT_NEAR(volume(cube), 1.0, 1e-12) << name;
+    // One smooth sheet: the two faces of every edge run it opposite ways (the same way,
+    // the subdivision makes the edge a crease).
+    std::set<std::pair<Index, Index>> directed;
+    for (Index f = 0; f < cube.numFaces(); ++f) {
+      const auto face = cube.face(f);
+      for (size_t k = 0; k < face.size(); ++k)
+        EXPECT_TRUE(directed.insert({face[k], face[(k + 1) % face.size()]}).second) << name;
+    }
+  }
 }

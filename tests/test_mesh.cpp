@@ -4,10 +4,13 @@
 #include <gtest/gtest.h>
 
 #include <algorithm>
+#include <array>
+#include <cmath>
 
 #include "zsculpt/core/errors.h"
 #include "zsculpt/mesh/builtin.h"
 #include "zsculpt/mesh/mesh.h"
+#include "zsculpt/mesh/orientation.h"
 
 using namespace zsculpt;
 
@@ -188,4 +191,108 @@ TEST(BuiltinErrors, UnknownOrMalformedNamesAreRefused) {
   for (const char* bad : {"builtin:cube", "builtin:torus:3", "builtin:grid:x", "builtin:grid:1",
                           "builtin:lattice", "builtin:helix:0", "builtin:torus:2:10", "torus"})
     EXPECT_THROW(makeBuiltin(bad), InvalidInputError) << bad;
+}
+
+// ---- orientation ------------------------------------------------------------------------------
+
+namespace {
+
+// The unit cube's six quads, wound outward.
+std::vector<std::vector<Index>> cubeFaces() {
+  return {{0, 3, 2, 1}, {4, 5, 6, 7}, {0, 1, 5, 4}, {2, 3, 7, 6}, {1, 2, 6, 5}, {0, 4, 7, 3}};
+}
+
+Points cubeCorners() {
+  Points p(8, 3);
+  p << 0, 0, 0, 1, 0, 0, 1, 1, 0, 0, 1, 0, 0, 0, 1, 1, 0, 1, 1, 1, 1, 0, 1, 1;
+  return p;
+}
+
+double signedVolume(const Points& p, const std::vector<std::vector<Index>>& faces) {
+  double v = 0.0;
+  for (const auto& f : faces)
+    for (size_t k = 1; k + 1 < f.size(); ++k)
+      v += p.row(f[0]).dot(p.row(f[k]).cross(p.row(f[k + 1]))) / 6.0;
+  return v;
+}
+
+// Every edge shared by two faces is run opposite ways by them.
+bool windsConsistently(const std::vector<std::vector<Index>>& faces) {
+  std::vector<std::array<Index, 2>> directed;
+  for (const auto& f : faces)
+    for (size_t k = 0; k < f.size(); ++k) directed.push_back({f[k], f[(k + 1) % f.size()]});
+  std::sort(directed.begin(), directed.end());
+  return std::adjacent_find(directed.begin(), directed.end()) == directed.end();
+}
+
+}  // namespace
+
+TEST(Orientation, AStrayFaceIsTurnedToAgreeAndAClosedSheetFacesOutward) {
+  const Points p = cubeCorners();
+  auto faces = cubeFaces();
+  ASSERT_NEAR(signedVolume(p, faces), 1.0, 1e-15);
+  EXPECT_EQ(orientFaces(p, faces).facesReversed, 0);
+  EXPECT_EQ(faces, cubeFaces());
+  // One face reversed: it, not its five neighbours, is turned back.
+  std::reverse(faces[3].begin(), faces[3].end());
+  ASSERT_FALSE(windsConsistently(faces));
+  EXPECT_EQ(orientFaces(p, faces).facesReversed, 1);
+  EXPECT_TRUE(windsConsistently(faces));
+  EXPECT_NEAR(signedVolume(p, faces), 1.0, 1e-15);
+  // Wound inward throughout: all six are turned outward.
+  for (auto& f : faces) std::reverse(f.begin(), f.end());
+  EXPECT_NEAR(signedVolume(p, faces), -1.0, 1e-15);
+  EXPECT_EQ(orientFaces(p, faces).facesReversed, 6);
+  EXPECT_NEAR(signedVolume(p, faces), 1.0, 1e-15);
+  // Five of six reversed (so the propagation from face 0 would turn the five): the closed
+  // sheet is still turned outward, by turning the five.
+  faces = cubeFaces();
+  for (size_t f = 1; f < 6; ++f) std::reverse(faces[f].begin(), faces[f].end());
+  EXPECT_EQ(orientFaces(p, faces).facesReversed, 5);
+  EXPECT_TRUE(windsConsistently(faces));
+  EXPECT_NEAR(signedVolume(p, faces), 1.0, 1e-15);
+}
+
+TEST(Orientation, AnOpenSheetKeepsItsMajorityAndNonManifoldSheetsAreOrientedApart) {
+  const Mesh grid = makeGrid(5);
+  std::vector<std::vector<Index>> faces;
+  for (Index f = 0; f < grid.numFaces(); ++f)
+    faces.emplace_back(grid.face(f).begin(), grid.face(f).end());
+  const auto original = faces;
+  std::reverse(faces[0].begin(), faces[0].end());  // the first face, where a search starts
+  EXPECT_EQ(orientFaces(grid.positions(), faces).facesReversed, 1);
+  EXPECT_TRUE(windsConsistently(faces));
+  for (size_t f = 1; f < faces.size(); ++f) EXPECT_EQ(faces[f], original[f]);
+  // Fins: sheets meeting at a non-manifold spine are each consistent already; nothing turns.
+  const Mesh fins = makeFins();
+  std::vector<std::vector<Index>> finFaces;
+  for (Index f = 0; f < fins.numFaces(); ++f)
+    finFaces.emplace_back(fins.face(f).begin(), fins.face(f).end());
+  const auto finsBefore = finFaces;
+  const OrientationReport report = orientFaces(fins.positions(), finFaces);
+  EXPECT_EQ(report.facesReversed, 0);
+  EXPECT_EQ(report.nonOrientableComponents, 0);
+  EXPECT_EQ(finFaces, finsBefore);
+}
+
+TEST(Orientation, AMoebiusBandIsSaidToBeNonOrientable) {
+  // Six quads around a half-twisted loop: no winding agrees across every edge.
+  const int n = 6;
+  Points p(2 * n, 3);
+  for (int i = 0; i < n; ++i) {
+    const double a = 2.0 * M_PI * i / n, t = 0.5 * a;
+    const Vec3 centre(std::cos(a), std::sin(a), 0.0);
+    const Vec3 across =
+        std::cos(t) * Vec3(std::cos(a), std::sin(a), 0.0) + std::sin(t) * Vec3::UnitZ();
+    p.row(2 * i) = (centre - 0.2 * across).transpose();
+    p.row(2 * i + 1) = (centre + 0.2 * across).transpose();
+  }
+  std::vector<std::vector<Index>> faces;
+  for (int i = 0; i < n; ++i) {
+    const Index a = 2 * i, b = 2 * i + 1;
+    // The last quad joins the first pair crossed over: the half twist.
+    const Index c = i + 1 < n ? 2 * (i + 1) + 1 : 0, d = i + 1 < n ? 2 * (i + 1) : 1;
+    faces.push_back({a, b, c, d});
+  }
+  EXPECT_EQ(orientFaces(p, faces).nonOrientableComponents, 1);
 }

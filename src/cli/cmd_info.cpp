@@ -44,6 +44,9 @@ int runInfo(const ModelOptions& options, bool json) {
               << "  \"mass_total\": " << jsonNumber(p.mass.sum()) << ",\n"
               << "  \"degenerate_faces_dropped\": " << loaded.report.degenerateFacesDropped << ",\n"
               << "  \"vertices_welded\": " << loaded.report.verticesWelded << ",\n"
+              << "  \"faces_reversed\": " << loaded.report.facesReversed << ",\n"
+              << "  \"non_orientable_components\": " << loaded.report.nonOrientableComponents
+              << ",\n"
               << "  \"t_max\": " << jsonNumber(tMax) << ",\n"
               << "  \"t_max_tight\": " << jsonNumber(tTight) << "\n"
               << "}\n";
@@ -57,9 +60,15 @@ int runInfo(const ModelOptions& options, bool json) {
             << "  angle springs " << model.angles.size() << "\n"
             << "  bounding box [" << box.min.transpose() << "] .. [" << box.max.transpose()
             << "]\n";
-  if (loaded.report.degenerateFacesDropped || loaded.report.verticesWelded)
+  if (loaded.report.degenerateFacesDropped || loaded.report.verticesWelded ||
+      loaded.report.facesReversed)
     std::cout << "  import: " << loaded.report.verticesWelded << " vertices welded, "
-              << loaded.report.degenerateFacesDropped << " degenerate faces dropped\n";
+              << loaded.report.degenerateFacesDropped << " degenerate faces dropped, "
+              << loaded.report.facesReversed
+              << " faces reversed to wind as their neighbours (a closed sheet outward)\n";
+  if (loaded.report.nonOrientableComponents)
+    std::cout << "  " << loaded.report.nonOrientableComponents
+              << " non-orientable component(s): no winding agrees across every edge\n";
   std::cout << "  mass " << p.mass.minCoeff() << " .. " << p.mass.maxCoeff() << " (total "
             << p.mass.sum() << "), stiffness " << p.stiffness.minCoeff() << " .. "
             << p.stiffness.maxCoeff() << ", angular stiffness " << p.angularStiffness.minCoeff()

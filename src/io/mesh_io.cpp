@@ -33,6 +33,7 @@
 #include "zsculpt/io/atomic_file.h"
 #include "zsculpt/io/isolated.h"
 #include "zsculpt/mesh/builtin.h"
+#include "zsculpt/mesh/orientation.h"
 
 namespace zsculpt::io {
 
@@ -377,6 +378,9 @@ Mesh meshFromScene(const aiScene& scene, const std::string& name, MeshLoadReport
   for (auto& face : faces)
     for (Index& c : face) c = newIndex[c];
   for (auto& edge : edges) edge = {newIndex[edge[0]], newIndex[edge[1]]};
+  const OrientationReport orientation = orientFaces(points, faces);
+  counts.facesReversed = orientation.facesReversed;
+  counts.nonOrientableComponents = orientation.nonOrientableComponents;
 
   try {
     Mesh result(std::move(points), faces, edges);
@@ -1788,7 +1792,9 @@ std::string encodeMesh(const Mesh& mesh, const MeshLoadReport& report) {
                                  report.verticesWelded,
                                  report.degenerateFacesDropped,
                                  report.pointsAndLinesDropped,
-                                 report.unusedVerticesDropped};
+                                 report.unusedVerticesDropped,
+                                 report.facesReversed,
+                                 report.nonOrientableComponents};
   std::string out;
   put(out, header, std::size(header));
   put(out, mesh.positions().data(), static_cast<std::size_t>(mesh.positions().size()));
@@ -1807,7 +1813,7 @@ Mesh decodeMesh(const std::string& bytes, const std::string& name, MeshLoadRepor
     std::memcpy(data, bytes.data() + at, count * sizeof(*data));
     at += count * sizeof(*data);
   };
-  std::int64_t header[9];
+  std::int64_t header[11];
   take(header, std::size(header));
   for (std::int64_t count : header)
     if (count < 0 || count > std::numeric_limits<Index>::max()) throw IOError(garbled);
@@ -1835,7 +1841,8 @@ Mesh decodeMesh(const std::string& bytes, const std::string& name, MeshLoadRepor
   if (report != nullptr)
     *report = MeshLoadReport{static_cast<Index>(header[4]), static_cast<Index>(header[5]),
                              static_cast<Index>(header[6]), static_cast<Index>(header[7]),
-                             static_cast<Index>(header[8])};
+                             static_cast<Index>(header[8]), static_cast<Index>(header[9]),
+                             static_cast<Index>(header[10])};
   return Mesh(std::move(positions), faces, edges);
 }
 

@@ -10,12 +10,15 @@
 namespace zsculpt::io {
 
 struct MeshLoadReport {
-  Index meshesMerged = 0;            // assimp meshes joined into one
-  Index verticesWelded = 0;          // file vertices merged into another at the same position
-  Index degenerateFacesDropped = 0;  // faces with < 3 distinct corners after welding, or
-                                     // repeating a corner
-  Index pointsAndLinesDropped = 0;   // point and line primitives that were not kept as edges
-  Index unusedVerticesDropped = 0;   // welded vertices that no kept face or edge uses
+  Index meshesMerged = 0;             // assimp meshes joined into one
+  Index verticesWelded = 0;           // file vertices merged into another at the same position
+  Index degenerateFacesDropped = 0;   // faces with < 3 distinct corners after welding, or
+                                      // repeating a corner
+  Index pointsAndLinesDropped = 0;    // point and line primitives that were not kept as edges
+  Index unusedVerticesDropped = 0;    // welded vertices that no kept face or edge uses
+  Index facesReversed = 0;            // faces turned to agree with their neighbours, or a
+                                      // closed sheet turned outward (mesh/orientation.h)
+  Index nonOrientableComponents = 0;  // sheets no winding can make agree (a Moebius band)
 };
 
 /// Imports a mesh file. Vertices are welded by exact position across all meshes of the
