@@ -574,6 +574,19 @@ TEST_F(Cli, RenderWatchesAPinnedModelFromAFixedPointAndBacksAwayToKeepItInView) 
   EXPECT_FALSE(reachesTheEdge(zsculpt::render::readPng(path("sagging/frame_0000.png"))));
 }
 
+TEST_F(Cli, RenderRefinesTheSurfaceForTheImageSize) {
+  // Level 2 showed a polygonal silhouette in large frames: the level now follows the image.
+  auto levelsAt = [&](const std::string& size, const std::string& more = "") {
+    const Result r = run("render builtin:torus --frames 1 --steps 0 --json --size " + size + more +
+                         " --out " + path("levels_" + size));
+    EXPECT_EQ(r.status, 0) << r.err;
+    return nlohmann::json::parse(r.out)["levels"].get<int>();
+  };
+  EXPECT_EQ(levelsAt("320x180"), 2);
+  EXPECT_EQ(levelsAt("1280x720"), 4);
+  EXPECT_EQ(levelsAt("640x360", " --levels 1"), 1);  // asked for: kept
+}
+
 TEST_F(Cli, RenderSpacesFramesEvenlyInTimeAndEndsOnTheAskedTime) {
   // 8 s at 0.5 T_max is 42 steps, which 23 intervals do not divide: frames alternated 1 and
   // 2 steps apart (a video stuttered by 2x) and the run ended at 8.13 s. Now the step is

@@ -147,7 +147,7 @@ RenderJobResult runRenderJob(const RenderJobOptions& o) {
   result.tMax = resolved.tMax;
 
   const Mesh& mesh = loaded.model.mesh;
-  result.levels = o.levels.value_or(app::affordableLevels(mesh, 2));
+  result.levels = o.levels.value_or(app::levelsForImage(mesh, result.height));
   std::unique_ptr<SubdivisionStencil> stencil;
   if (result.levels > 0) {
     SubdivisionOptions subdivision;

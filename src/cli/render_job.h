@@ -20,7 +20,7 @@ struct RenderJobOptions {
   std::string size = "1280x720";  ///< WxH
   std::string property;           ///< colour the surface by this property ("" or "none": clay)
   std::optional<int>
-      levels;  ///< Doo-Sabin levels of the drawn surface (default 2, less for huge meshes)
+      levels;            ///< Doo-Sabin levels of the drawn surface (default: app::levelsForImage)
   bool progress = true;  ///< a progress bar on standard error when it is a terminal
 };
 
