@@ -1,6 +1,7 @@
 #include "zsculpt/render/renderer.h"
 
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
@@ -231,7 +232,23 @@ struct Renderer::Impl {
     return p;
   }
 
-  GLint uniform(GLuint p, const char* name) const { return gl.GetUniformLocation(p, name); }
+  // A uniform's location, looked up once: the programs live as long as this object, and the
+  // names are string literals, so (program, name pointer) keys them. A frame asks for about
+  // 45; the driver's lookup parses and hashes the name each time.
+  struct UniformSlot {
+    GLuint program = 0;
+    const char* name = nullptr;
+    GLint location = -1;
+  };
+  mutable std::array<UniformSlot, 96> uniforms_{};
+  mutable std::size_t uniformCount_ = 0;
+  GLint uniform(GLuint p, const char* name) const {
+    for (std::size_t i = 0; i < uniformCount_; ++i)
+      if (uniforms_[i].program == p && uniforms_[i].name == name) return uniforms_[i].location;
+    const GLint location = gl.GetUniformLocation(p, name);
+    if (uniformCount_ < uniforms_.size()) uniforms_[uniformCount_++] = {p, name, location};
+    return location;
+  }
 
   GLuint buffer() {
     GLuint b = 0;
