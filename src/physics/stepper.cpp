@@ -1266,21 +1266,23 @@ void Stepper::stepExact(State& s, const Points& external, std::span<const double
   work1_ += acceleration_;
   work1_.rowwise() -= centreLoad.transpose();
 
+  // Coefficient-wise (lazy) products: Eigen's blocked product of a dense matrix by these
+  // three columns allocated its packing buffers every step, in the per-step path.
   work2_ = sqrtMass_.asDiagonal() * s.position;
-  modal1_.noalias() = modes_.transpose() * work2_;
+  modal1_.noalias() = modes_.transpose().lazyProduct(work2_);
   work2_ = sqrtMass_.asDiagonal() * s.velocity;
-  modal2_.noalias() = modes_.transpose() * work2_;
+  modal2_.noalias() = modes_.transpose().lazyProduct(work2_);
   work2_ = sqrtMass_.asDiagonal() * work1_;
-  modal3_.noalias() = modes_.transpose() * work2_;
+  modal3_.noalias() = modes_.transpose().lazyProduct(work2_);
   for (Index k = 0; k < modal1_.rows(); ++k) {
     const auto p = propagator_.row(k);
     const Eigen::RowVector3d r = modal1_.row(k), v = modal2_.row(k), b = modal3_.row(k);
     modal1_.row(k) = p[0] * r + p[1] * v + p[2] * b;
     modal2_.row(k) = p[3] * r + p[4] * v + p[5] * b;
   }
-  work2_.noalias() = modes_ * modal1_;
+  work2_.noalias() = modes_.lazyProduct(modal1_);
   s.position = inverseSqrtMass_.asDiagonal() * work2_;
-  work2_.noalias() = modes_ * modal2_;
+  work2_.noalias() = modes_.lazyProduct(modal2_);
   s.velocity = inverseSqrtMass_.asDiagonal() * work2_;
 
   // The motion about the centre has no mean in exact arithmetic; its rounding's mean goes.
