@@ -11,14 +11,6 @@ namespace zsculpt {
 
 namespace {
 
-// Entry (row, col) of a compressed row-major matrix (zero outside its pattern).
-double entry(const SparseRowMatrix& m, Index row, Index col) {
-  const Index* begin = m.innerIndexPtr() + m.outerIndexPtr()[row];
-  const Index* end = m.innerIndexPtr() + m.outerIndexPtr()[row + 1];
-  const Index* it = std::lower_bound(begin, end, col);
-  return (it != end && *it == col) ? m.valuePtr()[it - m.innerIndexPtr()] : 0.0;
-}
-
 // The angle between unit vectors a and b, accurate near 0 and pi.
 double angleBetween(const Vec3& a, const Vec3& b) {
   return std::atan2(a.cross(b).norm(), a.dot(b));
@@ -50,62 +42,17 @@ void StepResponse::buildElastic(const Stepper& stepper, const Model& model,
   elasticWork_.setZero(s, 3);
   chi_.assign(static_cast<size_t>(s), 0.0);
   totalMass_ = model.properties.mass.sum();
-  const double t = stepper.period(), t2 = t * t;
-  const SystemMatrices& system = stepper.system();
-  const SparseRowMatrix& o2 = system.omega2();
-  const VectorX& g = system.dampingCoefficient();
-  const VectorX& inverseMass = system.inverseMass();
-  const PhysicalProperties& p = model.properties;
+  const VectorX& inverseMass = stepper.system().inverseMass();
   auto sigma = [&](Index v) { return share.empty() ? 1.0 : share[static_cast<size_t>(v)]; };
-  // Omega^4_jl = sum_q Omega^2_jq Omega^2_ql (paper scheme's two-ring term).
-  auto omega4 = [&](Index j, Index l) {
-    double sum = 0.0;
-    for (Index k = o2.outerIndexPtr()[j]; k < o2.outerIndexPtr()[j + 1]; ++k)
-      sum += o2.valuePtr()[k] * entry(o2, o2.innerIndexPtr()[k], l);
-    return sum;
-  };
-  // Implicit Euler's (M + h D + h^2 K) restricted to its diagonal: a first-order model.
-  auto implicitFactor = [&](Index l) {
-    const double m = p.mass[l];
-    return m / (m + t * p.damping[l] + t2 * entry(system.stiffness(), l, l));
-  };
-  VectorX column;
+  // The scheme's own response (Stepper::positionResponse), per unit force on the elastic
+  // share sigma_l of vertex l.
+  std::vector<double> column(static_cast<size_t>(s));
   for (Index b = 0; b < s; ++b) {
     const Index l = support[static_cast<size_t>(b)];
     const double scale = sigma(l) * inverseMass[l];
-    // With the drift filter the response is global (the projection sums over the model).
-    const bool filtered = stepper.scheme() == Scheme::Default && stepper.filtersDrift();
-    if (filtered) column = stepper.filteredPositionColumn(l);
-    for (Index a = 0; a < s; ++a) {
-      const Index j = support[static_cast<size_t>(a)];
-      const double delta = (a == b) ? 1.0 : 0.0;
-      double c = 0.0;
-      switch (stepper.scheme()) {
-        case Scheme::Default:
-          // r' = r + T Psi (v + (T/2) Phi a), Psi = I without the drift filter, Phi = 1 - T^2
-          // Omega^2 / 12 or its W form (the damping half step acts on v before the
-          // kick, not on the kick).
-          c = filtered ? 0.5 * t2 * column[j] : 0.5 * t2 * (delta - t2 / 12.0 * entry(o2, j, l));
-          break;
-        case Scheme::Paper:
-        case Scheme::Exact:  // the Taylor H of equation 3 approximates the exact one
-          c = 0.5 * t2 * delta - t2 * t2 / 24.0 * entry(o2, j, l) +
-              t2 * t2 * t2 / 720.0 * omega4(j, l);
-          break;
-        case Scheme::SymplecticEuler:
-          c = delta * t2 * std::exp(-2.0 * g[j] * t);
-          break;
-        case Scheme::ImplicitEuler:
-          c = delta * t2 * implicitFactor(l);
-          break;
-      }
-      elastic_(a, b) = c * scale;
-    }
-    // sum_j mu_j C_jl: the Laplacian terms cancel (K's columns sum to zero).
-    double shift = 0.5 * t2;
-    if (stepper.scheme() == Scheme::SymplecticEuler) shift = t2 * std::exp(-2.0 * g[l] * t);
-    if (stepper.scheme() == Scheme::ImplicitEuler) shift = t2 * implicitFactor(l);
-    centreShift_[b] = shift * sigma(l);
+    stepper.positionResponse(l, support, column);
+    for (Index a = 0; a < s; ++a) elastic_(a, b) = column[static_cast<size_t>(a)] * scale;
+    centreShift_[b] = stepper.centreResponse(l) * sigma(l);
   }
   // Once per build (O(|S|^3)) rather than a factorisation of 3|S| unknowns every cycle.
   elasticInverse_.resize(s, s);

@@ -49,14 +49,19 @@ void multiplyRows(const SparseRowMatrix& a, const Points& in, Points& out,
 namespace {
 
 // Position of column `col` in row `row` of a compressed matrix, or -1.
-Index findInRow(const SparseRowMatrix& m, Index row, Index col) {
+}  // namespace
+
+Index csrPosition(const SparseRowMatrix& m, Index row, Index col) {
   const Index* begin = m.innerIndexPtr() + m.outerIndexPtr()[row];
   const Index* end = m.innerIndexPtr() + m.outerIndexPtr()[row + 1];
   const Index* it = std::lower_bound(begin, end, col);
   return (it != end && *it == col) ? static_cast<Index>(it - m.innerIndexPtr()) : -1;
 }
 
-}  // namespace
+double csrEntry(const SparseRowMatrix& m, Index row, Index col) {
+  const Index position = csrPosition(m, row, col);
+  return position >= 0 ? m.valuePtr()[position] : 0.0;
+}
 
 double matrixEdgeStiffness(const Model& model, Index edge) {
   const auto [i, j] = model.mesh.edge(edge);
@@ -158,12 +163,12 @@ void SystemMatrices::computeRow(const Model& model, Index v) {
   double* oValues = omega2_.valuePtr();
   for (size_t q = 0; q < neighbors.size(); ++q) {
     const double kappa = matrixEdgeStiffness(model, edges[q]);
-    const Index pos = findInRow(k_, v, neighbors[q]);
+    const Index pos = csrPosition(k_, v, neighbors[q]);
     kValues[pos] = -kappa;
     oValues[pos] = -kappa * inverseMass_[v];
     diagonal += kappa;
   }
-  const Index pos = findInRow(k_, v, v);
+  const Index pos = csrPosition(k_, v, v);
   kValues[pos] = diagonal;
   oValues[pos] = diagonal * inverseMass_[v];
 }
@@ -324,9 +329,9 @@ void TransformationMatrices::computeRow(const SystemMatrices& system, Index i, I
     for (Index p = begin; p < end; ++p) position[omega4_.innerIndexPtr()[p]] = p;
   for (SparseRowMatrix::InnerIterator a(o2, i); a; ++a)
     for (SparseRowMatrix::InnerIterator b(o2, a.col()); b; ++b)
-      o4[position ? position[b.col()] : findInRow(omega4_, i, b.col())] += a.value() * b.value();
+      o4[position ? position[b.col()] : csrPosition(omega4_, i, b.col())] += a.value() * b.value();
 
-  const double t = period_, t2 = t * t, t3 = t2 * t, t4 = t2 * t2, t5 = t4 * t, t6 = t4 * t2;
+  const double t = period_, t2 = t * t, t3 = t2 * t, t4 = t2 * t2, t5 = t4 * t;
   const double g = system.dampingCoefficient()[i];
   SparseRowMatrix::InnerIterator a(o2, i);
   for (Index p = begin; p < end; ++p) {
@@ -337,7 +342,7 @@ void TransformationMatrices::computeRow(const SystemMatrices& system, Index i, I
     const double delta = (col == i) ? 1.0 : 0.0;
     // Section 4.1: H = Omega^-2 (1 - cos Omega T), H' = Omega^-1 sin Omega T,
     // H'' = cos Omega T, each truncated after Omega^4.
-    const double h = t2 / 2.0 * delta - t4 / 24.0 * w2 + t6 / 720.0 * w4;
+    const double h = truncatedH(t, delta, w2, w4);
     const double hp = t * delta - t3 / 6.0 * w2 + t5 / 120.0 * w4;
     const double hpp = delta - t2 / 2.0 * w2 + t4 / 24.0 * w4;
     h_.valuePtr()[p] = h;

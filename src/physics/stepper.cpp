@@ -720,6 +720,59 @@ VectorX Stepper::filteredPositionColumn(Index l) const {
   return phi + t2 * apply(w);
 }
 
+void Stepper::positionResponse(Index l, std::span<const Index> rows, std::span<double> out) const {
+  ZSCULPT_ASSERT(rows.size() == out.size(), "positionResponse: one output per row");
+  const double t = period_, t2 = t * t;
+  const SparseRowMatrix& o2 = system_.omega2();
+  const bool filtered = scheme_ == Scheme::Default && filtersDrift();
+  // With the drift filter the response is global (the projection sums over the model).
+  const VectorX column = filtered ? filteredPositionColumn(l) : VectorX();
+  // Omega^4_jl = sum_q Omega^2_jq Omega^2_ql (the paper scheme's two-ring term).
+  auto omega4 = [&](Index j) {
+    double sum = 0.0;
+    for (Index k = o2.outerIndexPtr()[j]; k < o2.outerIndexPtr()[j + 1]; ++k)
+      sum += o2.valuePtr()[k] * csrEntry(o2, o2.innerIndexPtr()[k], l);
+    return sum;
+  };
+  for (size_t a = 0; a < rows.size(); ++a) {
+    const Index j = rows[a];
+    const double delta = (j == l) ? 1.0 : 0.0;
+    switch (scheme_) {
+      case Scheme::Default:
+        // r' = r + T Psi (v + (T/2) Phi a), Psi = I without the drift filter, Phi = 1 - T^2
+        // Omega^2 / 12 or its W form (the damping half step acts on v before the kick, not
+        // on the kick).
+        out[a] =
+            filtered ? 0.5 * t2 * column[j] : 0.5 * t2 * (delta - t2 / 12.0 * csrEntry(o2, j, l));
+        break;
+      case Scheme::Paper:
+      case Scheme::Exact:
+        out[a] = truncatedH(t, delta, csrEntry(o2, j, l), omega4(j));
+        break;
+      case Scheme::SymplecticEuler:
+      case Scheme::ImplicitEuler:
+        out[a] = delta * centreResponse(l);
+        break;
+    }
+  }
+}
+
+double Stepper::centreResponse(Index l) const {
+  const double t = period_, t2 = t * t;
+  switch (scheme_) {
+    case Scheme::SymplecticEuler:
+      return t2 * std::exp(-2.0 * system_.dampingCoefficient()[l] * t);
+    case Scheme::ImplicitEuler: {
+      // (M + h D + h^2 K) restricted to its diagonal.
+      const double m = model_.properties.mass[l];
+      return t2 * (m / (m + t * model_.properties.damping[l] +
+                        t2 * csrEntry(system_.stiffness(), l, l)));
+    }
+    default:
+      return 0.5 * t2;
+  }
+}
+
 void Stepper::resetLoadRecord() {
   const size_t blocks = static_cast<size_t>(forces_.numBlocks());
   externalZero_.assign(blocks, 1);

@@ -34,6 +34,21 @@ void multiply(const SparseRowMatrix& a, const Points& in, Points& out);
 void multiplyRows(const SparseRowMatrix& a, const Points& in, Points& out,
                   std::span<const Index> rows);
 
+/// Where entry (row, col) of a compressed row-major matrix is in its values; -1 outside its
+/// pattern.
+Index csrPosition(const SparseRowMatrix& m, Index row, Index col);
+/// Entry (row, col) of a compressed row-major matrix, 0 outside its pattern.
+double csrEntry(const SparseRowMatrix& m, Index row, Index col);
+
+/// Section 4.1's H = Omega^-2 (1 - cos Omega T) truncated after Omega^4 (equation 3), entry
+/// (j, l) from delta_jl and the entries of Omega^2 and Omega^4: the one place its
+/// coefficients are written (TransformationMatrices, and the position response of the
+/// paper's and the exact scheme, Stepper::positionResponse).
+inline double truncatedH(double t, double delta, double omega2, double omega4) {
+  const double t2 = t * t, t4 = t2 * t2, t6 = t4 * t2;
+  return t2 / 2.0 * delta - t4 / 24.0 * omega2 + t6 / 720.0 * omega4;
+}
+
 /// Stiffness of edge e as the matrices see it: the radial kappa_ij of the capped vertex
 /// stiffnesses plus the angle-spring bound of every angle that uses e as an arm.
 double matrixEdgeStiffness(const Model& model, Index edge);

@@ -188,6 +188,18 @@ class Stepper {
   /// position moves by (T^2/2) sigma_l / mu_l times it per unit force held on vertex l), N long.
   /// Not for the per-step path: it allocates.
   [[nodiscard]] VectorX filteredPositionColumn(Index l) const;
+  /// The step's linear response: how far the end position of each vertex in `rows` moves per
+  /// unit acceleration held at vertex l over the step, into `out` (the constraint solver
+  /// inverts it on its support; docs/semi-rigid-and-constraints.md). Each scheme's own: the
+  /// default's (T^2/2) Phi, or Psi Phi with the drift filter; the paper's H (equation 3);
+  /// symplectic Euler's damped T^2; implicit Euler's diagonal (a first-order model). The
+  /// exact scheme answers with equation 3's H, which approximates its own. Not for the
+  /// per-step path (the drift filter's column allocates).
+  void positionResponse(Index l, std::span<const Index> rows, std::span<double> out) const;
+  /// How far the centre of mass moves, times the total mass over mu_l, per unit acceleration
+  /// held at l: sum_j mu_j (d r'_j / d a_l) / mu_l (the Laplacian terms cancel: K's columns
+  /// sum to zero).
+  [[nodiscard]] double centreResponse(Index l) const;
   /// Default scheme with filtersDrift(): the products with W the drift takes per step, the
   /// degree of Psi in T^2 W (1 to 4: the lowest whose fit holds at this period).
   [[nodiscard]] int driftProducts() const { return driftDegree_; }
