@@ -273,6 +273,39 @@ TEST(Orientation, AnOpenSheetKeepsItsMajorityAndNonManifoldSheetsAreOrientedApar
   EXPECT_EQ(report.facesReversed, 0);
   EXPECT_EQ(report.nonOrientableComponents, 0);
   EXPECT_EQ(finFaces, finsBefore);
+  // Three fins of three quads each on a spine: one face of one fin reversed turns back
+  // alone (the spine is not crossed, so the other sheets are neither consulted nor changed).
+  Points spine(2 + 3 * 6, 3);
+  spine.row(0) << 0, 0, 0;
+  spine.row(1) << 0, 0, 1;
+  std::vector<std::vector<Index>> wings;
+  for (Index k = 0; k < 3; ++k) {
+    const double a = 2.0 * M_PI * static_cast<double>(k) / 3.0;
+    Index previousLow = 0, previousHigh = 1;
+    for (Index r = 1; r <= 3; ++r) {
+      const Index low = 2 + 6 * k + 2 * (r - 1), high = low + 1;
+      spine.row(low) << r * std::cos(a), r * std::sin(a), 0;
+      spine.row(high) << r * std::cos(a), r * std::sin(a), 1;
+      wings.push_back({previousLow, low, high, previousHigh});
+      previousLow = low;
+      previousHigh = high;
+    }
+  }
+  const auto wingsBefore = wings;
+  EXPECT_EQ(orientFaces(spine, wings).facesReversed, 0);
+  std::reverse(wings[4].begin(), wings[4].end());  // the middle face of the second fin
+  EXPECT_EQ(orientFaces(spine, wings).facesReversed, 1);
+  for (size_t f = 0; f < wings.size(); ++f) {
+    if (f == 4) {
+      // Turned back keeping its first corner: the original cycle, rotated.
+      auto rotated = wingsBefore[f];
+      std::rotate(rotated.begin(), std::find(rotated.begin(), rotated.end(), wings[f][0]),
+                  rotated.end());
+      EXPECT_EQ(wings[f], rotated);
+    } else {
+      EXPECT_EQ(wings[f], wingsBefore[f]) << f;
+    }
+  }
 }
 
 TEST(Orientation, AMoebiusBandIsSaidToBeNonOrientable) {
@@ -294,5 +327,53 @@ TEST(Orientation, AMoebiusBandIsSaidToBeNonOrientable) {
     const Index c = i + 1 < n ? 2 * (i + 1) + 1 : 0, d = i + 1 < n ? 2 * (i + 1) : 1;
     faces.push_back({a, b, c, d});
   }
-  EXPECT_EQ(orientFaces(p, faces).nonOrientableComponents, 1);
+  const auto band = faces;
+  const OrientationReport report = orientFaces(p, faces);
+  EXPECT_EQ(report.nonOrientableComponents, 1);
+  EXPECT_EQ(report.facesReversed, 0);
+  EXPECT_EQ(faces, band);  // left as it is
+}
+
+TEST(Orientation, AHollowModelsInnerWallFacesItsCavity) {
+  // A cube of side 3 with a cube of side 1 inside: the inner wall bounds the cavity, so it is
+  // wound inward (negative volume), as a thick-walled or 3D-printed part is.
+  Points p(16, 3);
+  const Points unit = cubeCorners();
+  p.topRows(8) = 3.0 * unit;
+  p.bottomRows(8) = (unit.array() + 1.0).matrix();
+  std::vector<std::vector<Index>> outer = cubeFaces(), inner = cubeFaces();
+  for (auto& f : inner) {
+    for (Index& v : f) v += 8;
+    std::reverse(f.begin(), f.end());  // into the cavity
+  }
+  auto hollow = outer;
+  hollow.insert(hollow.end(), inner.begin(), inner.end());
+  const auto right = hollow;
+  EXPECT_EQ(orientFaces(p, hollow).facesReversed, 0);
+  EXPECT_EQ(hollow, right);
+  EXPECT_NEAR(signedVolume(p, hollow), 27.0 - 1.0, 1e-12);
+  // The inner wall wound outward is turned into the cavity; the whole thing inside out is
+  // turned back, both walls.
+  auto wrongInside = outer;
+  for (auto f : inner) {
+    std::reverse(f.begin(), f.end());
+    wrongInside.push_back(f);
+  }
+  EXPECT_EQ(orientFaces(p, wrongInside).facesReversed, 6);
+  EXPECT_NEAR(signedVolume(p, wrongInside), 26.0, 1e-12);
+  auto insideOut = right;
+  for (auto& f : insideOut) std::reverse(f.begin(), f.end());
+  EXPECT_EQ(orientFaces(p, insideOut).facesReversed, 12);
+  EXPECT_NEAR(signedVolume(p, insideOut), 26.0, 1e-12);
+  // Two cubes side by side, neither inside the other: both outward.
+  Points apart(16, 3);
+  apart.topRows(8) = unit;
+  apart.bottomRows(8) = (unit.array() + 5.0).matrix();
+  auto two = outer;
+  for (auto f : inner) {
+    std::reverse(f.begin(), f.end());  // outward again: the second cube's own faces
+    two.push_back(f);
+  }
+  EXPECT_EQ(orientFaces(apart, two).facesReversed, 0);
+  EXPECT_NEAR(signedVolume(apart, two), 2.0, 1e-12);
 }

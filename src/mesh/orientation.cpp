@@ -2,6 +2,8 @@
 
 #include <algorithm>
 #include <array>
+#include <cmath>
+#include <limits>
 #include <tuple>
 
 namespace zsculpt {
@@ -58,19 +60,25 @@ OrientationReport orientFaces(const Points& positions, std::vector<std::vector<I
 
   // Sheet by sheet: turn[f] says whether face f must be reversed relative to the sheet's
   // first face.
+  struct Sheet {
+    std::vector<Index> faces;
+    bool closed = true, orientable = true;
+    bool flip = false;  // reverse the whole sheet as propagated
+    double volume = 0.0;
+  };
+  std::vector<Sheet> sheets;
   std::vector<int> turn(static_cast<size_t>(numFaces), -1);
-  std::vector<Index> sheet, queue;
+  std::vector<Index> queue;
   for (Index start = 0; start < numFaces; ++start) {
     if (turn[static_cast<size_t>(start)] >= 0) continue;
-    sheet.clear();
+    Sheet sheet;
     queue.assign(1, start);
     turn[static_cast<size_t>(start)] = 0;
-    bool orientable = true, closed = true;
     while (!queue.empty()) {
       const Index f = queue.back();
       queue.pop_back();
-      sheet.push_back(f);
-      closed = closed && closedEdge[static_cast<size_t>(f)];
+      sheet.faces.push_back(f);
+      sheet.closed = sheet.closed && closedEdge[static_cast<size_t>(f)];
       for (const Link& link : links[static_cast<size_t>(f)]) {
         // Agreeing neighbours run the shared edge opposite ways once both are turned.
         const int wanted = turn[static_cast<size_t>(f)] ^ (link.sameWay ? 1 : 0);
@@ -79,18 +87,16 @@ OrientationReport orientFaces(const Points& positions, std::vector<std::vector<I
           other = wanted;
           queue.push_back(link.other);
         } else if (other != wanted) {
-          orientable = false;
+          sheet.orientable = false;
         }
       }
     }
-    if (!orientable) ++report.nonOrientableComponents;
-    Index turned = 0;
-    for (Index f : sheet) turned += turn[static_cast<size_t>(f)];
-    bool flipAll = false;
-    if (closed && orientable) {
-      // Signed volume of the sheet as it would be wound (fans from each face's first corner).
-      double volume = 0.0;
-      for (Index f : sheet) {
+    if (!sheet.orientable) {
+      ++report.nonOrientableComponents;
+      for (Index f : sheet.faces) turn[static_cast<size_t>(f)] = 0;  // left as it is
+    } else if (sheet.closed) {
+      // Signed volume (x 6) of the sheet as propagated (fans from each face's first corner).
+      for (Index f : sheet.faces) {
         const auto& face = faces[static_cast<size_t>(f)];
         const bool reversed = turn[static_cast<size_t>(f)] == 1;
         const Vec3 p0 = positions.row(face[0]).transpose();
@@ -98,21 +104,78 @@ OrientationReport orientFaces(const Points& positions, std::vector<std::vector<I
           Vec3 p1 = positions.row(face[k]).transpose();
           Vec3 p2 = positions.row(face[k + 1]).transpose();
           if (reversed) std::swap(p1, p2);
-          volume += p0.dot(p1.cross(p2));
+          sheet.volume += p0.dot(p1.cross(p2));
         }
       }
-      flipAll = volume < 0.0;
     } else {
-      flipAll = 2 * turned > static_cast<Index>(sheet.size());
+      Index turned = 0;
+      for (Index f : sheet.faces) turned += turn[static_cast<size_t>(f)];
+      sheet.flip = 2 * turned > static_cast<Index>(sheet.faces.size());
     }
-    for (Index f : sheet) {
-      const bool reverse = (turn[static_cast<size_t>(f)] == 1) != flipAll;
-      if (reverse) {
+    sheets.push_back(std::move(sheet));
+  }
+
+  // A closed sheet faces away from the solid it bounds: outward (positive volume) unless it
+  // lies inside an odd number of other closed sheets, as a hollow model's inner wall does,
+  // which faces into its cavity. Nesting is read from the winding number of each other
+  // closed sheet at a point of this one (a face's centroid), where its bounding box holds it.
+  std::vector<size_t> closedSheets;
+  for (size_t k = 0; k < sheets.size(); ++k)
+    if (sheets[k].closed && sheets[k].orientable) closedSheets.push_back(k);
+  if (!closedSheets.empty()) {
+    std::vector<Vec3> boxMin(sheets.size()), boxMax(sheets.size());
+    for (size_t k : closedSheets) {
+      boxMin[k] = Vec3::Constant(std::numeric_limits<double>::infinity());
+      boxMax[k] = -boxMin[k];
+      for (Index f : sheets[k].faces)
+        for (Index v : faces[static_cast<size_t>(f)]) {
+          boxMin[k] = boxMin[k].cwiseMin(positions.row(v).transpose());
+          boxMax[k] = boxMax[k].cwiseMax(positions.row(v).transpose());
+        }
+    }
+    // Winding number of sheet k (as propagated) at p: its solid angle over 4 pi, by Van
+    // Oosterom and Strackee's formula per fan triangle; +-1 inside, 0 outside.
+    auto winding = [&](size_t k, const Vec3& p) {
+      double total = 0.0;
+      for (Index f : sheets[k].faces) {
+        const auto& face = faces[static_cast<size_t>(f)];
+        const bool reversed = turn[static_cast<size_t>(f)] == 1;
+        const Vec3 a = positions.row(face[0]).transpose() - p;
+        for (size_t i = 1; i + 1 < face.size(); ++i) {
+          Vec3 b = positions.row(face[i]).transpose() - p;
+          Vec3 c = positions.row(face[i + 1]).transpose() - p;
+          if (reversed) std::swap(b, c);
+          const double la = a.norm(), lb = b.norm(), lc = c.norm();
+          const double numerator = a.dot(b.cross(c));
+          const double denominator = la * lb * lc + a.dot(b) * lc + a.dot(c) * lb + b.dot(c) * la;
+          total += 2.0 * std::atan2(numerator, denominator);
+        }
+      }
+      return total / (4.0 * M_PI);
+    };
+    for (size_t k : closedSheets) {
+      const auto& face = faces[static_cast<size_t>(sheets[k].faces.front())];
+      Vec3 point = Vec3::Zero();
+      for (Index v : face) point += positions.row(v).transpose();
+      point /= static_cast<double>(face.size());
+      int depth = 0;
+      for (size_t other : closedSheets) {
+        if (other == k || (point.array() < boxMin[other].array()).any() ||
+            (point.array() > boxMax[other].array()).any())
+          continue;
+        if (std::abs(winding(other, point)) > 0.5) ++depth;
+      }
+      const bool outward = depth % 2 == 0;
+      sheets[k].flip = outward ? sheets[k].volume < 0.0 : sheets[k].volume > 0.0;
+    }
+  }
+
+  for (const Sheet& sheet : sheets)
+    for (Index f : sheet.faces)
+      if ((turn[static_cast<size_t>(f)] == 1) != sheet.flip) {
         reverseFace(faces[static_cast<size_t>(f)]);
         ++report.facesReversed;
       }
-    }
-  }
   return report;
 }
 

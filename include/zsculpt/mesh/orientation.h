@@ -14,15 +14,17 @@ namespace zsculpt {
 struct OrientationReport {
   Index facesReversed = 0;
   /// Components in which no winding agrees across every shared edge (a Moebius band): they
-  /// are left as the propagation from their first face made them.
+  /// are left as they are.
   Index nonOrientableComponents = 0;
 };
 
 /// Makes the faces' winding agree across every edge shared by exactly two faces (an edge of
 /// three or more faces, non-manifold, joins sheets that have no common side, and is not
-/// crossed), sheet by sheet. A closed sheet is then wound outward (positive signed volume);
-/// an open one keeps the winding most of its faces had, so that one stray face is the one
-/// turned. A face is reversed keeping its first corner.
+/// crossed), sheet by sheet. A closed sheet is then wound away from the solid it bounds:
+/// outward (positive signed volume), or into its cavity when it lies inside an odd number of
+/// other closed sheets (a hollow model's inner wall). An open sheet keeps the winding most of
+/// its faces had, so that one stray face is the one turned. A non-orientable sheet is left
+/// as it is. A face is reversed keeping its first corner.
 OrientationReport orientFaces(const Points& positions, std::vector<std::vector<Index>>& faces);
 
 }  // namespace zsculpt
