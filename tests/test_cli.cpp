@@ -603,6 +603,23 @@ TEST_F(Cli, RenderSpacesFramesEvenlyInTimeAndEndsOnTheAskedTime) {
   EXPECT_EQ(j["steps"].get<long>() % 23, 0);
   // Never a longer step than asked for (0.5 T_max), so never past the stable limit.
   EXPECT_LE(j["dt"].get<double>(), 0.5 * j["t_max"].get<double>());
+  // Fitted whatever the frames: 42 steps already divide into 21 intervals, or 1, and the run
+  // still ended at 8.13 s.
+  for (const int frames : {22, 2, 1}) {
+    const Result fitted =
+        run("render builtin:grid:8 --time 8 --size 96x64 --json --frames " +
+            std::to_string(frames) + " --out " + path("fit" + std::to_string(frames)));
+    ASSERT_EQ(fitted.status, 0) << fitted.err;
+    EXPECT_NEAR(nlohmann::json::parse(fitted.out)["frame_times"].back().get<double>(), 8.0, 1e-12)
+        << frames;
+  }
+  // A step given by flag and shortened is said.
+  const Result told = run(
+      "render builtin:grid:8 --time 8 --frames 24 --dt 0.19 --size 96x64 --out " + path("told"));
+  ASSERT_EQ(told.status, 0) << told.err;
+  EXPECT_NE(told.err.find("--dt: the step is shortened from 0.19 s to 0.173913 s"),
+            std::string::npos)
+      << told.err;
   // An explicit step count is kept, and the uneven spacing said.
   const Result kept = run(
       "render builtin:grid:8 --steps 100 --frames 24 --size 96x64 --json --out " + path("kept"));

@@ -16,6 +16,7 @@
 #include "zsculpt/mesh/builtin.h"
 #include "zsculpt/physics/diagnostics.h"
 #include "zsculpt/physics/matrices.h"
+#include "zsculpt/simulation/divergence_guard.h"
 #include "zsculpt/simulation/simulation.h"
 
 using namespace zsculpt;
@@ -1578,6 +1579,41 @@ TEST(Simulation, EverySchemesCycleAllocatesNothing) {
     gCounting = false;
     EXPECT_EQ(gAllocations.load(), 0) << schemeName(scheme);
   }
+}
+
+TEST(DivergenceGuard, AnEditsEnergyIsCountedAsWorkAndCheckpointsTakeTurns) {
+  const Model model = makeModel(makeTorus(12, 8), ModelSpec{.angular = 0.2});
+  Simulation sim(model, settingsFor(model, 0.5));
+  State start = State::atRest(model.mesh);
+  start.velocity.col(2).setConstant(0.0);
+  start.velocity(0, 2) = 1.0;
+  start.velocity(40, 2) = -1.0;
+  sim.setState(start);
+  DivergenceGuard told(sim), untold(sim);
+  std::uint64_t cycle = 0;
+  auto cycleOnce = [&] {
+    told.beforeStep(sim, cycle);
+    untold.beforeStep(sim, cycle);
+    sim.step();
+    ++cycle;
+    const Diagnostics d = sim.diagnostics();
+    return std::pair{told.afterStep(sim, d), untold.afterStep(sim, d)};
+  };
+  for (int k = 0; k < 70; ++k) ASSERT_EQ(cycleOnce(), std::pair(true, true)) << k;
+  // The older checkpoint is the one kept: at least kCheckpointEvery cycles back.
+  EXPECT_EQ(told.lastGoodCycle(), 32u);
+  EXPECT_GE(cycle - told.lastGoodCycle(), DivergenceGuard::kCheckpointEvery);
+  // Stiffness times 200: the stored energy jumps far past ten times the start. Told as an
+  // edit's change, it is work put in; untold, it looks like a runaway.
+  const double before = sim.diagnostics().total();
+  sim.mutableProperties().stiffness *= 200.0;
+  sim.allPropertiesChanged();
+  told.editChangedEnergy();
+  const auto [toldOk, untoldOk] = cycleOnce();
+  ASSERT_GT(sim.diagnostics().total(), 20.0 * before);
+  EXPECT_TRUE(toldOk);
+  EXPECT_FALSE(untoldOk);
+  EXPECT_NE(untold.reason().find("the energy ran away"), std::string::npos);
 }
 
 TEST(Simulation, ALargeModelThatDivergesIsCaughtAndRolledBack) {

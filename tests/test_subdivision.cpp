@@ -857,3 +857,22 @@ TEST(Robustness, CoincidentRefinedVerticesAreWelded) {
     }
   }
 }
+
+TEST(Limits, LevelsPastTheVertexBudgetAreRefusedUpFrontAndLevelZeroNever) {
+  const Mesh dodecahedron = makeBuiltin("builtin:dodecahedron");  // 20 vertices, 60 corners
+  SubdivisionOptions options;
+  options.maxRefinedVertices = 100.0;
+  options.levels = 0;  // the control mesh itself (a format conversion): never refused
+  EXPECT_NO_THROW(SubdivisionStencil(dodecahedron, options));
+  options.levels = 1;  // 60 vertices
+  EXPECT_NO_THROW(SubdivisionStencil(dodecahedron, options));
+  options.levels = 2;  // 240
+  try {
+    SubdivisionStencil stencil(dodecahedron, options);
+    FAIL() << "2 levels were not refused";
+  } catch (const InvalidInputError& e) {
+    EXPECT_NE(std::string(e.what()).find("at most 1 level fit"), std::string::npos) << e.what();
+  }
+  EXPECT_EQ(estimatedRefinedVertices(dodecahedron, 2), 240.0);
+  EXPECT_EQ(levelsWithin(dodecahedron, 5, 1000.0), 3);  // 960 at level 3, 3840 at 4
+}

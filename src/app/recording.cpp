@@ -97,10 +97,17 @@ SessionSetup setupFromHeader(const json& header, const std::string& path,
   setup.period = period.get<double>();
   if (header.contains("mesh_hash"))
     meshHashOut = parseHex(header.at("mesh_hash"), where + ": mesh_hash");
-  setup.mesh = io::loadMeshSource(setup.scene.mesh);
+  io::MeshLoadReport loadReport;
+  setup.mesh = io::loadMeshSource(setup.scene.mesh, &loadReport);
   if (meshHashOut && meshHash(setup.mesh) != *meshHashOut)
-    throw InvalidInputError(path + ": the mesh " + setup.scene.mesh +
-                            " is not the one this session was recorded with (its hash differs)");
+    throw InvalidInputError(
+        path + ": the mesh " + setup.scene.mesh +
+        " is not the one this session was recorded with (its hash differs)" +
+        (loadReport.facesReversed > 0
+             ? "; this version winds its faces consistently on import (" +
+                   std::to_string(loadReport.facesReversed) +
+                   " reversed), which a recording made before that cannot replay"
+             : ""));
   if (header.contains("initial_state")) {
     const json& s = header.at("initial_state");
     if (!s.is_object() || !s.contains("position") || !s.contains("velocity"))

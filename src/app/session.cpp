@@ -269,7 +269,7 @@ void Session::apply(const Command& command) {
                    checkFinite(g.gravity, "gravity");
                    sim_->mutableProperties().gravity = g.gravity;
                    sim_->propertiesChanged({});
-                   guard_->rebase();  // the gravity's potential energy changed
+                   guard_->editChangedEnergy();  // the gravity's potential energy changed
                    unsaved_ = true;
                  },
                  [&](const SetStiffnessCap& c) {
@@ -277,13 +277,12 @@ void Session::apply(const Command& command) {
                      throw InvalidInputError("stiffness cap: must be positive (infinity: none)");
                    sim_->mutableProperties().stiffnessCap = c.cap;
                    sim_->allPropertiesChanged();
-                   guard_->rebase();
+                   guard_->editChangedEnergy();
                    refreshLimits();
                    keepPeriodFraction();
                    unsaved_ = true;
                  },
                  [&](const Edit& e) {
-                   guard_->rebase();  // a property edit changes the stored energy
                    const editing::EditTarget target{sim_->model().mesh, sim_->model().angles,
                                                     sim_->mutableProperties()};
                    // The simulation takes the new values before the edit enters the history; if it
@@ -311,6 +310,7 @@ void Session::apply(const Command& command) {
                      throw;
                    }
                    if (!result.changed) return;
+                   guard_->editChangedEnergy();  // a property edit changes the stored energy
                    refreshLimits();
                    keepPeriodFraction();
                    unsaved_ = true;
@@ -460,7 +460,10 @@ void Session::apply(const Command& command) {
                    sim_->setConstraintTarget(dragId_, d.target);
                    if (!dragOwnsConstraint_) unsaved_ = true;  // a pin moved
                  },
-                 [&](const DragEnd&) { endDrag(); },
+                 [&](const DragEnd&) {
+                   endDrag();
+                   guard_->rebase();  // the drag's work no longer loosens the bound
+                 },
                  [&](const MarkSaved&) { unsaved_ = false; },
              },
              command);

@@ -12,14 +12,15 @@ int affordableLevels(const Mesh& mesh, int wanted, Index maxRefinedVertices) {
   return levelsWithin(mesh, wanted, static_cast<double>(maxRefinedVertices));
 }
 
-int levelsForImage(const Mesh& mesh, int height, Index maxRefinedVertices) {
+int levelsForImage(const Mesh& mesh, int width, int height, Index maxRefinedVertices) {
+  const int side = std::min(width, height);
   const double diagonal = mesh.boundingBox().diagonal();
   double sum = 0.0;
   for (const auto& [a, b] : mesh.edges())
     sum += (mesh.positions().row(a) - mesh.positions().row(b)).norm();
   const double meanEdge = mesh.numEdges() > 0 ? sum / static_cast<double>(mesh.numEdges()) : 0.0;
-  // Framed, the bounding box's diagonal spans about the image's height.
-  const double edgePixels = diagonal > 0.0 ? meanEdge / diagonal * height : 0.0;
+  // Framed, the bounding box's diagonal spans about the image's shorter side.
+  const double edgePixels = diagonal > 0.0 ? meanEdge / diagonal * side : 0.0;
   int levels = 2;
   while (levels < 5 && edgePixels / static_cast<double>(1 << levels) > 8.0) ++levels;
   return affordableLevels(mesh, levels, maxRefinedVertices);

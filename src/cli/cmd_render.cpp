@@ -28,7 +28,8 @@ void addRenderCommand(CLI::App& root, CommandList& commands) {
                   "colour the surface by a property: mass, damping, stiffness, angular_stiffness, "
                   "rigidity, rest_length, rest_angle (default: none)");
   app->add_option("--levels", o->levels,
-                  "Doo-Sabin levels of the drawn surface, 0 to 6 (default 2)");
+                  "Doo-Sabin levels of the drawn surface, 0 to 6 (default: 2 to 5, by the "
+                  "image size)");
   app->add_flag("!--no-progress", o->progress, "no progress bar on standard error");
   commands.push_back({app, [o]() {
                         const RenderJobResult r = runRenderJob(*o);

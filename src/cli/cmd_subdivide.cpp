@@ -35,7 +35,7 @@ int runSubdivide(const SubdivideOptions& options) {
   const Mesh& control = loaded.model.mesh;
   // The stencil refuses levels the memory cannot take; said of the flag that asked for them.
   // The estimate (subdivision.h) refuses what would not fit before any work; memory that
-  // runs out anyway (a smaller machine) is said of the flag, with the levels that would fit.
+  // runs out anyway (a smaller machine) is said of the flag.
   const SubdivisionStencil stencil = [&] {
     try {
       return SubdivisionStencil(control, sub);

@@ -248,8 +248,10 @@ RunOptions::Resolved RunOptions::resolve(const LoadedModel& loaded) const {
   double period = 0.0;
   if (dt) {
     period = *dt;
+    r.explicitPeriod = "--dt";
   } else if (dtRatio) {
     period = *dtRatio * r.tMax;
+    r.explicitPeriod = "--dt-ratio";
   } else if (fromScene && fromScene->dt) {
     period = *fromScene->dt;
   } else {

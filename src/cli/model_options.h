@@ -64,6 +64,9 @@ struct RunOptions {
     std::optional<double> seconds;
     /// Whether the step count was given (--steps, or the scene's /simulation/steps).
     bool explicitSteps = false;
+    /// The flag that gave the period (--dt, --dt-ratio); empty for a scene's or the
+    /// default.
+    std::string explicitPeriod;
     /// When the period is above the scheme's stable limit (allowed by --allow-unstable, or
     /// by `open` for a scene's own step): what is wrong, naming where the step came from.
     std::string aboveStableLimit;

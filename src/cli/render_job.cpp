@@ -57,15 +57,26 @@ std::vector<long> frameSteps(const RenderJobOptions& o, RunOptions::Resolved& ru
     return at;
   }
   const long n = o.frames.value_or(kDefaultFrames);
+  const long intervals = std::max(1L, n - 1);
+  if (run.seconds && *run.seconds > 0.0) {
+    // Always fitted, so that the run ends on the time asked for.
+    long fitted = std::max(1L, (steps + intervals - 1) / intervals) * intervals;
+    while (*run.seconds / static_cast<double>(fitted) > run.settings.period) fitted += intervals;
+    const double period = *run.seconds / static_cast<double>(fitted);
+    if (!run.explicitPeriod.empty() && period < run.settings.period * (1.0 - 1e-12)) {
+      std::ostringstream msg;
+      msg.precision(6);
+      msg << run.explicitPeriod << ": the step is shortened from " << run.settings.period
+          << " s to " << period << " s, so that the frames fall on whole steps and the run "
+          << "ends at " << *run.seconds << " s";
+      warn(msg.str());
+    }
+    steps = fitted;
+    run.settings.period = period;
+  }
   if (n == 1) return {steps};
-  const long intervals = n - 1;
   if (steps >= intervals && steps % intervals != 0) {
-    if (run.seconds && *run.seconds > 0.0) {
-      long fitted = (steps + intervals - 1) / intervals * intervals;
-      while (*run.seconds / static_cast<double>(fitted) > run.settings.period) fitted += intervals;
-      steps = fitted;
-      run.settings.period = *run.seconds / static_cast<double>(fitted);
-    } else if (!run.explicitSteps) {
+    if (!run.explicitSteps) {
       steps = (steps + intervals - 1) / intervals * intervals;
     } else {
       const long apart = steps / intervals;
@@ -147,7 +158,7 @@ RenderJobResult runRenderJob(const RenderJobOptions& o) {
   result.tMax = resolved.tMax;
 
   const Mesh& mesh = loaded.model.mesh;
-  result.levels = o.levels.value_or(app::levelsForImage(mesh, result.height));
+  result.levels = o.levels.value_or(app::levelsForImage(mesh, result.width, result.height));
   std::unique_ptr<SubdivisionStencil> stencil;
   if (result.levels > 0) {
     SubdivisionOptions subdivision;

@@ -25,7 +25,9 @@ void DivergenceGuard::restart(const Simulation& sim) {
   start_ = d.total();
   inflow_ = 0.0;
   maxKinetic_ = d.kinetic;
+  lastEnergy_ = start_;
   rebase_ = false;
+  editPending_ = false;
   copyInto(slots_[0], sim.state());
   copyInto(slots_[1], sim.state());
   slotCycle_[0] = slotCycle_[1] = 0;
@@ -51,12 +53,17 @@ bool DivergenceGuard::afterStep(const Simulation& sim, const Diagnostics& diagno
     return false;
   }
   if (rebase_) {
-    start_ = energy;
+    start_ = lastEnergy_ = energy;
     inflow_ = 0.0;
     maxKinetic_ = diagnostics.kinetic;
-    rebase_ = false;
+    rebase_ = editPending_ = false;
     return true;
   }
+  if (editPending_) {
+    inflow_ += std::abs(energy - lastEnergy_);
+    editPending_ = false;
+  }
+  lastEnergy_ = energy;
   // Work of the loads and of the constraints over this cycle, counted in absolute value: the
   // scale of energy moved in and out.
   inflow_ += std::abs(sim.loadWork()) + std::abs(sim.constraintWork());

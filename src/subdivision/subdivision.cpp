@@ -68,8 +68,9 @@ SubdivisionStencil::SubdivisionStencil(const Mesh& control, const SubdivisionOpt
                             std::to_string(kMaxLevels) + "]");
   if (options.mass) validateMass(control, *options.mass);
   // Refuse up front, before any work, what would not fit, naming the levels that would.
+  // (Level 0 is the control mesh itself: a format conversion, whatever its size.)
   const double estimate = estimatedRefinedVertices(control, levels_);
-  if (estimate > options.maxRefinedVertices) {
+  if (levels_ > 0 && estimate > options.maxRefinedVertices) {
     const int fit = levelsWithin(control, levels_, options.maxRefinedVertices);
     char text[320];
     std::snprintf(text, sizeof text,
@@ -386,6 +387,8 @@ Mesh subdivide(const Mesh& control, const SubdivisionOptions& options) {
 }
 
 Mesh refinedMesh(const SubdivisionStencil& stencil, Points refined) {
+  ZSCULPT_ASSERT(refined.rows() == stencil.numRefinedVertices(),
+                 "refinedMesh: the positions are not the stencil's refined vertices");
   const CsrIndex& faces = stencil.refinedFaces();
   std::vector<std::vector<Index>> polygons(static_cast<size_t>(faces.rows()));
   for (Index f = 0; f < faces.rows(); ++f)

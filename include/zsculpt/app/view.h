@@ -31,11 +31,12 @@ struct ViewSettings {
 /// vertices: a closed quad mesh grows about 4x per level.
 int affordableLevels(const Mesh& mesh, int wanted, Index maxRefinedVertices = 400000);
 
-/// The level for an image `height` pixels high with the model framed to fill it: from 2
+/// The level for an image of `width` x `height` pixels with the model framed to fill it (the
+/// shorter side, which the framing fits): from 2
 /// (the default look) up to 5 until the refined edges span about 8 pixels or less (each
 /// level about halves them; a 4K frame of a coarse model at level 2 showed a polygonal
 /// silhouette), within affordableLevels' budget.
-int levelsForImage(const Mesh& mesh, int height, Index maxRefinedVertices = 400000);
+int levelsForImage(const Mesh& mesh, int width, int height, Index maxRefinedVertices = 400000);
 
 /// Applies a scene's camera settings over `camera` (absent values keep it).
 void applyCameraSettings(const io::CameraSettings& settings, render::Camera& camera);

@@ -38,9 +38,13 @@ class DivergenceGuard {
   /// reset, a state loaded or a model replaced.
   void restart(const Simulation& sim);
   /// The next checked cycle's energy becomes the start (inflow and the kinetic maximum
-  /// forgotten): after an edit that changed the stored energy by an amount not worth
-  /// measuring (a brush dab, a drag's new target, a loaded property).
+  /// forgotten): when a drag ends, so that its work does not loosen the bound for the rest
+  /// of a long session.
   void rebase() { rebase_ = true; }
+  /// The change of the energy from the last checked cycle to the next is counted as work put
+  /// in: after an edit that changed the stored energy by an amount not worth measuring (a
+  /// brush dab, gravity, the stiffness cap). The bound stays armed, loosened by that much.
+  void editChangedEnergy() { editPending_ = true; }
   /// Energy put in by an edit whose change was measured (the command line's timed edits).
   void addEnergy(double joules);
 
@@ -60,6 +64,8 @@ class DivergenceGuard {
   double inflow_ = 0.0;
   double maxKinetic_ = 0.0;
   bool rebase_ = false;
+  bool editPending_ = false;
+  double lastEnergy_ = 0.0;
   State slots_[2];
   std::uint64_t slotCycle_[2] = {0, 0};
   int newest_ = 0;
