@@ -1319,24 +1319,46 @@ void Stepper::stepExact(State& s, const Points& external, std::span<const double
   work1_ += acceleration_;
   work1_.rowwise() -= centreLoad.transpose();
 
-  // Coefficient-wise (lazy) products: Eigen's blocked product of a dense matrix by these
-  // three columns allocated its packing buffers every step, in the per-step path.
-  work2_ = sqrtMass_.asDiagonal() * s.position;
-  modal1_.noalias() = modes_.transpose().lazyProduct(work2_);
-  work2_ = sqrtMass_.asDiagonal() * s.velocity;
-  modal2_.noalias() = modes_.transpose().lazyProduct(work2_);
-  work2_ = sqrtMass_.asDiagonal() * work1_;
-  modal3_.noalias() = modes_.transpose().lazyProduct(work2_);
+  // To modal coordinates and back with plain loops that read the modes once each way, column
+  // by column (they are column-major): Eigen's blocked products allocated packing buffers
+  // every step, and its coefficient-wise ones read the modes nine and six times.
+  const Index n = modes_.rows();
+  const double* root = sqrtMass_.data();
+  for (Index k = 0; k < modes_.cols(); ++k) {
+    const double* q = modes_.col(k).data();
+    double r[3] = {0, 0, 0}, v[3] = {0, 0, 0}, b[3] = {0, 0, 0};
+    for (Index i = 0; i < n; ++i) {
+      const double w = q[i] * root[i];
+      for (int d = 0; d < 3; ++d) {
+        r[d] += w * s.position(i, d);
+        v[d] += w * s.velocity(i, d);
+        b[d] += w * work1_(i, d);
+      }
+    }
+    for (int d = 0; d < 3; ++d) {
+      modal1_(k, d) = r[d];
+      modal2_(k, d) = v[d];
+      modal3_(k, d) = b[d];
+    }
+  }
   for (Index k = 0; k < modal1_.rows(); ++k) {
     const auto p = propagator_.row(k);
     const Eigen::RowVector3d r = modal1_.row(k), v = modal2_.row(k), b = modal3_.row(k);
     modal1_.row(k) = p[0] * r + p[1] * v + p[2] * b;
     modal2_.row(k) = p[3] * r + p[4] * v + p[5] * b;
   }
-  work2_.noalias() = modes_.lazyProduct(modal1_);
-  s.position = inverseSqrtMass_.asDiagonal() * work2_;
-  work2_.noalias() = modes_.lazyProduct(modal2_);
-  s.velocity = inverseSqrtMass_.asDiagonal() * work2_;
+  s.position.setZero();
+  s.velocity.setZero();
+  for (Index k = 0; k < modes_.cols(); ++k) {
+    const double* q = modes_.col(k).data();
+    const Eigen::RowVector3d r = modal1_.row(k), v = modal2_.row(k);
+    for (Index i = 0; i < n; ++i) {
+      s.position.row(i) += q[i] * r;
+      s.velocity.row(i) += q[i] * v;
+    }
+  }
+  s.position = inverseSqrtMass_.asDiagonal() * s.position;
+  s.velocity = inverseSqrtMass_.asDiagonal() * s.velocity;
 
   // The motion about the centre has no mean in exact arithmetic; its rounding's mean goes.
   const auto& c = centrePropagator_;
