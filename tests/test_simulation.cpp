@@ -1583,7 +1583,9 @@ TEST(Simulation, EverySchemesCycleAllocatesNothing) {
 
 TEST(DivergenceGuard, AnEditsEnergyIsCountedAsWorkAndCheckpointsTakeTurns) {
   const Model model = makeModel(makeTorus(12, 8), ModelSpec{.angular = 0.2});
-  Simulation sim(model, settingsFor(model, 0.5));
+  SimulationSettings settings = settingsFor(model, 0.5);
+  settings.substepStrain = 0.0;  // one step a cycle, so that a period too long blows up
+  Simulation sim(model, settings);
   State start = State::atRest(model.mesh);
   start.velocity.col(2).setConstant(0.0);
   start.velocity(0, 2) = 1.0;
@@ -1603,17 +1605,40 @@ TEST(DivergenceGuard, AnEditsEnergyIsCountedAsWorkAndCheckpointsTakeTurns) {
   // The older checkpoint is the one kept: at least kCheckpointEvery cycles back.
   EXPECT_EQ(told.lastGoodCycle(), 32u);
   EXPECT_GE(cycle - told.lastGoodCycle(), DivergenceGuard::kCheckpointEvery);
-  // Stiffness times 200: the stored energy jumps far past ten times the start. Told as an
-  // edit's change, it is work put in; untold, it looks like a runaway.
+  // Rest lengths 1.3 times as long: the stored energy jumps far past ten times the start,
+  // and the model stays stable (T_max does not depend on them). Told as an edit's change, it
+  // is work put in; untold, it looks like a runaway.
   const double before = sim.diagnostics().total();
-  sim.mutableProperties().stiffness *= 200.0;
+  sim.mutableProperties().restLength *= 1.3;
   sim.allPropertiesChanged();
   told.editChangedEnergy();
-  const auto [toldOk, untoldOk] = cycleOnce();
+  told.measureEdit(sim.diagnostics().total());
   ASSERT_GT(sim.diagnostics().total(), 20.0 * before);
+  const auto [toldOk, untoldOk] = cycleOnce();
   EXPECT_TRUE(toldOk);
   EXPECT_FALSE(untoldOk);
   EXPECT_NE(untold.reason().find("the energy ran away"), std::string::npos);
+  for (int k = 0; k < 200; ++k) ASSERT_TRUE(cycleOnce().first) << k;
+  // Still armed: measured before the step, an edit's credit is its own change, not the
+  // step's. A stiffness 400 times higher at the same period (10 times T_max) blows up, and
+  // the told guard catches it while the energy is finite.
+  sim.mutableProperties().stiffness *= 400.0;
+  sim.allPropertiesChanged();
+  told.editChangedEnergy();
+  told.measureEdit(sim.diagnostics().total());
+  bool caught = false;
+  for (int k = 0; k < 50 && !caught; ++k) {
+    told.beforeStep(sim, cycle);
+    try {
+      sim.step();
+    } catch (const DivergenceError&) {
+      break;
+    }
+    ++cycle;
+    caught = !told.afterStep(sim, sim.diagnostics());
+  }
+  EXPECT_TRUE(caught);
+  EXPECT_NE(told.reason().find("the energy ran away"), std::string::npos) << told.reason();
 }
 
 TEST(Simulation, ALargeModelThatDivergesIsCaughtAndRolledBack) {

@@ -484,6 +484,8 @@ Session::Outcome Session::advance() {
                          " s: " + error.what());
     }
   }
+  // An edit's change of the stored energy, measured before the step moves the state.
+  if (guard_->editPending()) guard_->measureEdit(sim_->diagnostics().total());
   bool diverged = false;
   std::string reason;
   try {

@@ -39,6 +39,13 @@ void DivergenceGuard::addEnergy(double joules) {
   inflow_ += std::abs(joules);
 }
 
+void DivergenceGuard::measureEdit(double energy) {
+  if (!std::isfinite(energy)) return;  // the step's check will say so
+  inflow_ += std::abs(energy - lastEnergy_);
+  lastEnergy_ = energy;
+  editPending_ = false;
+}
+
 void DivergenceGuard::beforeStep(const Simulation& sim, std::uint64_t cycle) {
   if (cycle == 0 || cycle % kCheckpointEvery != 0) return;
   newest_ = 1 - newest_;

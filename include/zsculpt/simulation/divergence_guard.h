@@ -7,7 +7,7 @@
 //
 // Simulation::step already refuses a non-finite state. This also catches runaway energy:
 // without damping the total energy can only change by the work the loads and constraints
-// put in (and by edits, which rebase the guard), up to the scheme's own bounded error,
+// put in (and by edits, counted as work), up to the scheme's own bounded error,
 // which is relative to the energy exchanged inside the model (a falling model turns
 // hundreds of kilojoules of gravity into motion with a total that stays near zero). An
 // energy that exceeds its start by ten times everything that flowed in plus the largest
@@ -41,10 +41,14 @@ class DivergenceGuard {
   /// forgotten): when a drag ends, so that its work does not loosen the bound for the rest
   /// of a long session.
   void rebase() { rebase_ = true; }
-  /// The change of the energy from the last checked cycle to the next is counted as work put
-  /// in: after an edit that changed the stored energy by an amount not worth measuring (a
-  /// brush dab, gravity, the stiffness cap). The bound stays armed, loosened by that much.
+  /// After an edit that changed the stored energy (a brush dab, gravity, the stiffness cap):
+  /// its change is counted as work put in, measured by measureEdit before the next step (the
+  /// state has not moved since the last checked cycle, so the difference is the edit's
+  /// alone), or else, at the next check, the change since the last one.
   void editChangedEnergy() { editPending_ = true; }
+  [[nodiscard]] bool editPending() const { return editPending_; }
+  /// The energy now, after the edits and before the step: the edits' change is counted.
+  void measureEdit(double energy);
   /// Energy put in by an edit whose change was measured (the command line's timed edits).
   void addEnergy(double joules);
 
