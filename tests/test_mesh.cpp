@@ -334,9 +334,10 @@ TEST(Orientation, AMoebiusBandIsSaidToBeNonOrientable) {
   EXPECT_EQ(faces, band);  // left as it is
 }
 
-TEST(Orientation, AHollowModelsInnerWallFacesItsCavity) {
-  // A cube of side 3 with a cube of side 1 inside: the inner wall bounds the cavity, so it is
-  // wound inward (negative volume), as a thick-walled or 3D-printed part is.
+TEST(Orientation, ANestedSheetKeepsItsWindingRelativeToTheSheetAroundIt) {
+  // A cube of side 3 with a cube of side 1 inside. Wound into the cavity, the inner one is a
+  // hollow model's inner wall (a thick-walled or 3D-printed part); wound outward, a part
+  // inside another. Neither is turned; both are when the whole model is inside out.
   Points p(16, 3);
   const Points unit = cubeCorners();
   p.topRows(8) = 3.0 * unit;
@@ -352,15 +353,13 @@ TEST(Orientation, AHollowModelsInnerWallFacesItsCavity) {
   EXPECT_EQ(orientFaces(p, hollow).facesReversed, 0);
   EXPECT_EQ(hollow, right);
   EXPECT_NEAR(signedVolume(p, hollow), 27.0 - 1.0, 1e-12);
-  // The inner wall wound outward is turned into the cavity; the whole thing inside out is
-  // turned back, both walls.
-  auto wrongInside = outer;
+  auto part = outer;
   for (auto f : inner) {
     std::reverse(f.begin(), f.end());
-    wrongInside.push_back(f);
+    part.push_back(f);
   }
-  EXPECT_EQ(orientFaces(p, wrongInside).facesReversed, 6);
-  EXPECT_NEAR(signedVolume(p, wrongInside), 26.0, 1e-12);
+  EXPECT_EQ(orientFaces(p, part).facesReversed, 0);
+  EXPECT_NEAR(signedVolume(p, part), 28.0, 1e-12);
   auto insideOut = right;
   for (auto& f : insideOut) std::reverse(f.begin(), f.end());
   EXPECT_EQ(orientFaces(p, insideOut).facesReversed, 12);
@@ -376,4 +375,23 @@ TEST(Orientation, AHollowModelsInnerWallFacesItsCavity) {
   }
   EXPECT_EQ(orientFaces(apart, two).facesReversed, 0);
   EXPECT_NEAR(signedVolume(apart, two), 2.0, 1e-12);
+  // A unit cube half sunk into the big one (an eye in a head), wound inward by mistake: it
+  // is not inside, so it is turned outward, and the big one is left as it is.
+  Points sunk(16, 3);
+  sunk.topRows(8) = 3.0 * unit;
+  sunk.bottomRows(8) = (unit.array() + 2.5).matrix();
+  auto overlapping = outer;
+  for (auto f : inner) overlapping.push_back(f);  // inner is wound inward
+  EXPECT_EQ(orientFaces(sunk, overlapping).facesReversed, 6);
+  EXPECT_NEAR(signedVolume(sunk, overlapping), 28.0, 1e-12);
+  // A small part resting on the big one's top face (its bottom face's centroid on that
+  // face): not inside either.
+  Points resting(16, 3);
+  resting.topRows(8) = 3.0 * unit;
+  resting.bottomRows(8) = unit;
+  resting.bottomRows(8).col(2).array() += 3.0;
+  auto onTop = outer;
+  for (auto f : inner) onTop.push_back(f);  // wound inward
+  EXPECT_EQ(orientFaces(resting, onTop).facesReversed, 6);
+  EXPECT_NEAR(signedVolume(resting, onTop), 28.0, 1e-12);
 }

@@ -44,14 +44,6 @@ void appendAffectedRows(const Mesh& mesh, Property property, std::span<const Ind
 
 namespace {
 
-// Position of the diagonal entry of row i (the pattern always holds it).
-double diagonalEntry(const SparseRowMatrix& m, Index i) {
-  const Index* begin = m.innerIndexPtr() + m.outerIndexPtr()[i];
-  const Index* end = m.innerIndexPtr() + m.outerIndexPtr()[i + 1];
-  const Index* it = std::lower_bound(begin, end, i);
-  return (it != end && *it == i) ? m.valuePtr()[it - m.innerIndexPtr()] : 0.0;
-}
-
 constexpr double kEmpty = -std::numeric_limits<double>::infinity();
 
 }  // namespace
@@ -62,7 +54,7 @@ CriticalPeriodTracker::CriticalPeriodTracker(const SystemMatrices& system) {
   while (leaves_ < n) leaves_ *= 2;
   tree_.assign(2 * static_cast<size_t>(leaves_), kEmpty);
   for (Index i = 0; i < n; ++i)
-    tree_[static_cast<size_t>(leaves_ + i)] = diagonalEntry(system.omega2(), i);
+    tree_[static_cast<size_t>(leaves_ + i)] = csrEntry(system.omega2(), i, i);
   for (Index k = leaves_ - 1; k >= 1; --k)
     tree_[static_cast<size_t>(k)] =
         std::max(tree_[2 * static_cast<size_t>(k)], tree_[2 * static_cast<size_t>(k) + 1]);
@@ -71,7 +63,7 @@ CriticalPeriodTracker::CriticalPeriodTracker(const SystemMatrices& system) {
 void CriticalPeriodTracker::update(const SystemMatrices& system, std::span<const Index> rows) {
   for (Index i : rows) {
     size_t k = static_cast<size_t>(leaves_ + i);
-    tree_[k] = diagonalEntry(system.omega2(), i);
+    tree_[k] = csrEntry(system.omega2(), i, i);
     for (k /= 2; k >= 1; k /= 2) {
       const double m = std::max(tree_[2 * k], tree_[2 * k + 1]);
       if (m == tree_[k]) break;  // nothing above changes either

@@ -95,14 +95,16 @@ OrientationReport orientFaces(const Points& positions, std::vector<std::vector<I
       ++report.nonOrientableComponents;
       for (Index f : sheet.faces) turn[static_cast<size_t>(f)] = 0;  // left as it is
     } else if (sheet.closed) {
-      // Signed volume (x 6) of the sheet as propagated (fans from each face's first corner).
+      // Signed volume (x 6) of the sheet as propagated (fans from each face's first corner),
+      // about one of its own vertices: a small part far from the origin keeps its sign.
+      const Vec3 origin = positions.row(faces[static_cast<size_t>(start)][0]).transpose();
       for (Index f : sheet.faces) {
         const auto& face = faces[static_cast<size_t>(f)];
         const bool reversed = turn[static_cast<size_t>(f)] == 1;
-        const Vec3 p0 = positions.row(face[0]).transpose();
+        const Vec3 p0 = positions.row(face[0]).transpose() - origin;
         for (size_t k = 1; k + 1 < face.size(); ++k) {
-          Vec3 p1 = positions.row(face[k]).transpose();
-          Vec3 p2 = positions.row(face[k + 1]).transpose();
+          Vec3 p1 = positions.row(face[k]).transpose() - origin;
+          Vec3 p2 = positions.row(face[k + 1]).transpose() - origin;
           if (reversed) std::swap(p1, p2);
           sheet.volume += p0.dot(p1.cross(p2));
         }
@@ -115,59 +117,79 @@ OrientationReport orientFaces(const Points& positions, std::vector<std::vector<I
     sheets.push_back(std::move(sheet));
   }
 
-  // A closed sheet faces away from the solid it bounds: outward (positive volume) unless it
-  // lies inside an odd number of other closed sheets, as a hollow model's inner wall does,
-  // which faces into its cavity. Nesting is read from the winding number of each other
-  // closed sheet at a point of this one (a face's centroid), where its bounding box holds it.
+  // A closed sheet faces outward (positive volume), unless it lies inside a larger closed
+  // sheet: a hollow model's inner wall faces its cavity, and a part inside another is wound
+  // outward; neither can be told from the geometry alone, so a nested sheet keeps its winding
+  // relative to the sheet around it (turned only if that one is turned: a whole model wound
+  // inside out). Nesting: the other's bounding box holds this one's strictly, and the other's
+  // winding number is near 1 at three of this sheet's face centroids (a point on the other's
+  // surface gives about 1/2, a sheet only overlapping it some 0). Containers are looked for
+  // among the 64 largest sheets, so that a model of many parts loads in linear time.
   std::vector<size_t> closedSheets;
   for (size_t k = 0; k < sheets.size(); ++k)
     if (sheets[k].closed && sheets[k].orientable) closedSheets.push_back(k);
-  if (!closedSheets.empty()) {
-    std::vector<Vec3> boxMin(sheets.size()), boxMax(sheets.size());
-    for (size_t k : closedSheets) {
-      boxMin[k] = Vec3::Constant(std::numeric_limits<double>::infinity());
-      boxMax[k] = -boxMin[k];
-      for (Index f : sheets[k].faces)
-        for (Index v : faces[static_cast<size_t>(f)]) {
-          boxMin[k] = boxMin[k].cwiseMin(positions.row(v).transpose());
-          boxMax[k] = boxMax[k].cwiseMax(positions.row(v).transpose());
-        }
-    }
-    // Winding number of sheet k (as propagated) at p: its solid angle over 4 pi, by Van
-    // Oosterom and Strackee's formula per fan triangle; +-1 inside, 0 outside.
-    auto winding = [&](size_t k, const Vec3& p) {
-      double total = 0.0;
-      for (Index f : sheets[k].faces) {
-        const auto& face = faces[static_cast<size_t>(f)];
-        const bool reversed = turn[static_cast<size_t>(f)] == 1;
-        const Vec3 a = positions.row(face[0]).transpose() - p;
-        for (size_t i = 1; i + 1 < face.size(); ++i) {
-          Vec3 b = positions.row(face[i]).transpose() - p;
-          Vec3 c = positions.row(face[i + 1]).transpose() - p;
-          if (reversed) std::swap(b, c);
-          const double la = a.norm(), lb = b.norm(), lc = c.norm();
-          const double numerator = a.dot(b.cross(c));
-          const double denominator = la * lb * lc + a.dot(b) * lc + a.dot(c) * lb + b.dot(c) * la;
-          total += 2.0 * std::atan2(numerator, denominator);
-        }
+  std::sort(closedSheets.begin(), closedSheets.end(), [&](size_t a, size_t b) {
+    return std::abs(sheets[a].volume) > std::abs(sheets[b].volume);
+  });
+  std::vector<Vec3> boxMin(sheets.size()), boxMax(sheets.size());
+  for (size_t k : closedSheets) {
+    boxMin[k] = Vec3::Constant(std::numeric_limits<double>::infinity());
+    boxMax[k] = -boxMin[k];
+    for (Index f : sheets[k].faces)
+      for (Index v : faces[static_cast<size_t>(f)]) {
+        boxMin[k] = boxMin[k].cwiseMin(positions.row(v).transpose());
+        boxMax[k] = boxMax[k].cwiseMax(positions.row(v).transpose());
       }
-      return total / (4.0 * M_PI);
-    };
-    for (size_t k : closedSheets) {
-      const auto& face = faces[static_cast<size_t>(sheets[k].faces.front())];
-      Vec3 point = Vec3::Zero();
-      for (Index v : face) point += positions.row(v).transpose();
-      point /= static_cast<double>(face.size());
-      int depth = 0;
-      for (size_t other : closedSheets) {
-        if (other == k || (point.array() < boxMin[other].array()).any() ||
-            (point.array() > boxMax[other].array()).any())
-          continue;
-        if (std::abs(winding(other, point)) > 0.5) ++depth;
+  }
+  // Winding number of sheet k (as propagated) at p: its solid angle over 4 pi, by Van
+  // Oosterom and Strackee's formula per fan triangle; +-1 inside, 0 outside.
+  auto winding = [&](size_t k, const Vec3& p) {
+    double total = 0.0;
+    for (Index f : sheets[k].faces) {
+      const auto& face = faces[static_cast<size_t>(f)];
+      const bool reversed = turn[static_cast<size_t>(f)] == 1;
+      const Vec3 a = positions.row(face[0]).transpose() - p;
+      for (size_t i = 1; i + 1 < face.size(); ++i) {
+        Vec3 b = positions.row(face[i]).transpose() - p;
+        Vec3 c = positions.row(face[i + 1]).transpose() - p;
+        if (reversed) std::swap(b, c);
+        const double la = a.norm(), lb = b.norm(), lc = c.norm();
+        const double numerator = a.dot(b.cross(c));
+        const double denominator = la * lb * lc + a.dot(b) * lc + a.dot(c) * lb + b.dot(c) * la;
+        total += 2.0 * std::atan2(numerator, denominator);
       }
-      const bool outward = depth % 2 == 0;
-      sheets[k].flip = outward ? sheets[k].volume < 0.0 : sheets[k].volume > 0.0;
     }
+    return total / (4.0 * M_PI);
+  };
+  auto centroid = [&](Index f) {
+    const auto& face = faces[static_cast<size_t>(f)];
+    Vec3 c = Vec3::Zero();
+    for (Index v : face) c += positions.row(v).transpose();
+    return Vec3(c / static_cast<double>(face.size()));
+  };
+  constexpr size_t kContainers = 64;
+  for (size_t rank = 0; rank < closedSheets.size(); ++rank) {
+    Sheet& sheet = sheets[closedSheets[rank]];
+    const size_t k = closedSheets[rank];
+    const size_t n = sheet.faces.size();
+    const Vec3 samples[3] = {centroid(sheet.faces[0]), centroid(sheet.faces[n / 3]),
+                             centroid(sheet.faces[2 * n / 3])};
+    // The innermost container: the smallest of the larger sheets that holds this one.
+    const Sheet* container = nullptr;
+    for (size_t r = std::min(rank, kContainers); r-- > 0;) {
+      const size_t other = closedSheets[r];
+      if (!(std::abs(sheets[other].volume) > std::abs(sheet.volume)) ||
+          !(boxMin[other].array() < boxMin[k].array()).all() ||
+          !(boxMax[other].array() > boxMax[k].array()).all())
+        continue;
+      bool inside = true;
+      for (const Vec3& p : samples) inside = inside && std::abs(winding(other, p)) > 0.75;
+      if (inside) {
+        container = &sheets[other];
+        break;
+      }
+    }
+    sheet.flip = container ? container->flip : sheet.volume < 0.0;
   }
 
   for (const Sheet& sheet : sheets)

@@ -46,11 +46,6 @@ void multiplyRows(const SparseRowMatrix& a, const Points& in, Points& out,
   }
 }
 
-namespace {
-
-// Position of column `col` in row `row` of a compressed matrix, or -1.
-}  // namespace
-
 Index csrPosition(const SparseRowMatrix& m, Index row, Index col) {
   const Index* begin = m.innerIndexPtr() + m.outerIndexPtr()[row];
   const Index* end = m.innerIndexPtr() + m.outerIndexPtr()[row + 1];

@@ -20,11 +20,12 @@ struct OrientationReport {
 
 /// Makes the faces' winding agree across every edge shared by exactly two faces (an edge of
 /// three or more faces, non-manifold, joins sheets that have no common side, and is not
-/// crossed), sheet by sheet. A closed sheet is then wound away from the solid it bounds:
-/// outward (positive signed volume), or into its cavity when it lies inside an odd number of
-/// other closed sheets (a hollow model's inner wall). An open sheet keeps the winding most of
-/// its faces had, so that one stray face is the one turned. A non-orientable sheet is left
-/// as it is. A face is reversed keeping its first corner.
+/// crossed), sheet by sheet. A closed sheet is then wound outward (positive signed volume),
+/// unless it lies inside a larger closed sheet: a hollow model's inner wall (wound into its
+/// cavity) and a part inside another (wound outward) look alike, so a nested sheet keeps its
+/// winding relative to the one around it, turned only with it. An open sheet keeps the
+/// winding most of its faces had, so that one stray face is the one turned. A non-orientable
+/// sheet is left as it is. A face is reversed keeping its first corner.
 OrientationReport orientFaces(const Points& positions, std::vector<std::vector<Index>>& faces);
 
 }  // namespace zsculpt
