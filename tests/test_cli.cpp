@@ -574,6 +574,22 @@ TEST_F(Cli, RenderWatchesAPinnedModelFromAFixedPointAndBacksAwayToKeepItInView) 
   EXPECT_FALSE(reachesTheEdge(zsculpt::render::readPng(path("sagging/frame_0000.png"))));
 }
 
+TEST_F(Cli, RenderSaysWhenNothingActsOnTheModel) {
+  // 1000 steps of identical frames used to be rendered without a word.
+  const std::string still = "nothing acts on the model";
+  const Result bare = run("render builtin:grid:6 --frames 2 --size 96x64 --out " + path("bare"));
+  ASSERT_EQ(bare.status, 0) << bare.err;
+  EXPECT_NE(bare.err.find(still), std::string::npos) << bare.err;
+  EXPECT_TRUE(fs::exists(path("bare/frame_0001.png")));  // still rendered
+  for (const char* acting :
+       {"--perturb 0.01", "--force 3:0,0,1", "--gravity 0,0,-1", "--pin 0:0,0,1"}) {
+    const Result r = run(std::string("render builtin:grid:6 --frames 2 --size 96x64 ") + acting +
+                         " --out " + path("acting"));
+    ASSERT_EQ(r.status, 0) << r.err;
+    EXPECT_EQ(r.err.find(still), std::string::npos) << acting << ": " << r.err;
+  }
+}
+
 TEST_F(Cli, RenderRefinesTheSurfaceForTheImageSize) {
   // Level 2 showed a polygonal silhouette in large frames: the level now follows the image.
   auto levelsAt = [&](const std::string& size, const std::string& more = "") {

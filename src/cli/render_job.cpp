@@ -170,6 +170,31 @@ RenderJobResult runRenderJob(const RenderJobOptions& o) {
   o.run.prepare(loaded, sim);
   for (const std::string& warning : sim.takeWarnings()) warn(loaded.source + ": " + warning);
   TimedEdits edits(loaded, sim, false);
+  // A bare model at rest with nothing acting on it renders identical frames: said after the
+  // run, with how to set it going (the frames are still written).
+  bool nothingActs = false;
+  {
+    const State rest = State::atRest(sim.model().mesh);
+    const bool atRest = sim.state().velocity.isZero(0.0) && sim.state().position == rest.position;
+    const bool heldAway =
+        std::any_of(sim.constraints().constraints().begin(), sim.constraints().constraints().end(),
+                    [&](const Constraint& c) {
+                      // (A normal pin may ask for another normal: counted as acting, never warned
+                      // of.)
+                      return c.kind == ConstraintKind::Normal ||
+                             c.value != sim.state().position.row(c.vertex).transpose();
+                    });
+    nothingActs = atRest && sim.forces().empty() && sim.torques().empty() &&
+                  sim.model().properties.gravity.isZero(0.0) && edits.schedule.size() == 0 &&
+                  !heldAway;
+  }
+  auto sayNothingActs = [&] {
+    if (nothingActs)
+      warn(loaded.source +
+           ": nothing acts on the model (no load, gravity, perturbation, initial state, pin "
+           "target or edit), so it stays at rest and every frame is the same; try --perturb "
+           "0.05, --force I:FX,FY,FZ or --gravity 0,0,-9.81");
+  };
 
   // 2. The frame: the camera is framed once on the start (with its arrows), keeps that
   // orientation, and backs away (never closer) when the model would leave the view, so
@@ -305,6 +330,7 @@ RenderJobResult runRenderJob(const RenderJobOptions& o) {
                     static_cast<long>(result.frames.size()), static_cast<long>(frameAt.size()));
   }
   progress.finish();
+  sayNothingActs();
 
   result.diagnostics =
       o.run.csv.empty() ? (fs::path(o.out) / "diagnostics.csv").string() : o.run.csv;
