@@ -21,6 +21,20 @@ void reverseFace(std::vector<Index>& face) {
   std::reverse(face.begin() + 1, face.end());
 }
 
+/// Calls f(a, b, c) for each triangle of the face's fan from its first corner, as wound
+/// (b and c swapped when `reversed`), the corners relative to `origin`.
+template <class F>
+void forEachFanTriangle(const Points& positions, const std::vector<Index>& face, bool reversed,
+                        const Vec3& origin, F&& f) {
+  const Vec3 a = positions.row(face[0]).transpose() - origin;
+  for (size_t k = 1; k + 1 < face.size(); ++k) {
+    Vec3 b = positions.row(face[k]).transpose() - origin;
+    Vec3 c = positions.row(face[k + 1]).transpose() - origin;
+    if (reversed) std::swap(b, c);
+    f(a, b, c);
+  }
+}
+
 }  // namespace
 
 OrientationReport orientFaces(const Points& positions, std::vector<std::vector<Index>>& faces) {
@@ -98,17 +112,12 @@ OrientationReport orientFaces(const Points& positions, std::vector<std::vector<I
       // Signed volume (x 6) of the sheet as propagated (fans from each face's first corner),
       // about one of its own vertices: a small part far from the origin keeps its sign.
       const Vec3 origin = positions.row(faces[static_cast<size_t>(start)][0]).transpose();
-      for (Index f : sheet.faces) {
-        const auto& face = faces[static_cast<size_t>(f)];
-        const bool reversed = turn[static_cast<size_t>(f)] == 1;
-        const Vec3 p0 = positions.row(face[0]).transpose() - origin;
-        for (size_t k = 1; k + 1 < face.size(); ++k) {
-          Vec3 p1 = positions.row(face[k]).transpose() - origin;
-          Vec3 p2 = positions.row(face[k + 1]).transpose() - origin;
-          if (reversed) std::swap(p1, p2);
-          sheet.volume += p0.dot(p1.cross(p2));
-        }
-      }
+      for (Index f : sheet.faces)
+        forEachFanTriangle(positions, faces[static_cast<size_t>(f)],
+                           turn[static_cast<size_t>(f)] == 1, origin,
+                           [&](const Vec3& a, const Vec3& b, const Vec3& c) {
+                             sheet.volume += a.dot(b.cross(c));
+                           });
     } else {
       Index turned = 0;
       for (Index f : sheet.faces) turned += turn[static_cast<size_t>(f)];
@@ -145,20 +154,15 @@ OrientationReport orientFaces(const Points& positions, std::vector<std::vector<I
   // Oosterom and Strackee's formula per fan triangle; +-1 inside, 0 outside.
   auto winding = [&](size_t k, const Vec3& p) {
     double total = 0.0;
-    for (Index f : sheets[k].faces) {
-      const auto& face = faces[static_cast<size_t>(f)];
-      const bool reversed = turn[static_cast<size_t>(f)] == 1;
-      const Vec3 a = positions.row(face[0]).transpose() - p;
-      for (size_t i = 1; i + 1 < face.size(); ++i) {
-        Vec3 b = positions.row(face[i]).transpose() - p;
-        Vec3 c = positions.row(face[i + 1]).transpose() - p;
-        if (reversed) std::swap(b, c);
-        const double la = a.norm(), lb = b.norm(), lc = c.norm();
-        const double numerator = a.dot(b.cross(c));
-        const double denominator = la * lb * lc + a.dot(b) * lc + a.dot(c) * lb + b.dot(c) * la;
-        total += 2.0 * std::atan2(numerator, denominator);
-      }
-    }
+    for (Index f : sheets[k].faces)
+      forEachFanTriangle(
+          positions, faces[static_cast<size_t>(f)], turn[static_cast<size_t>(f)] == 1, p,
+          [&](const Vec3& a, const Vec3& b, const Vec3& c) {
+            const double la = a.norm(), lb = b.norm(), lc = c.norm();
+            const double numerator = a.dot(b.cross(c));
+            const double denominator = la * lb * lc + a.dot(b) * lc + a.dot(c) * lb + b.dot(c) * la;
+            total += 2.0 * std::atan2(numerator, denominator);
+          });
     return total / (4.0 * M_PI);
   };
   auto centroid = [&](Index f) {
