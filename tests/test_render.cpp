@@ -893,6 +893,44 @@ TEST(Plot, RoundingNoiseOnAConservedQuantityIsDrawnFlat) {
   EXPECT_LT(energy.yMax - energy.yMin, 3.0);
 }
 
+TEST(Plot, ARunOfNoStepsShowsItsOneSampleOnAxesThatStartAtZero) {
+  // `render --steps 0` writes one diagnostics row. Its plot ran from t = -1 to 1 s with |p|
+  // from -1e-9 to 1e-9 (a time and a magnitude cannot be negative), and its lone sample drew
+  // no line, so the panels were empty.
+  EnergyMomentumSeries d;
+  d.time = {0.0};
+  d.kinetic = {1.0};
+  d.potential = {1.5};
+  d.total = {2.5};
+  d.px = d.py = d.pz = {0.0};
+  d.lx = d.ly = {0.0};
+  d.lz = {0.4};
+  const auto panels = energyMomentumPanels(d);
+  PlotLayout layout;
+  const Image image = renderPlot(panels, {}, &layout);
+  ASSERT_EQ(layout.panels.size(), 3u);
+  for (const PanelGeometry& g : layout.panels) {
+    EXPECT_EQ(g.xMin, 0.0);
+    EXPECT_GT(g.xMax, 0.0);
+  }
+  EXPECT_EQ(layout.panels[1].yMin, 0.0);
+  EXPECT_GE(layout.panels[2].yMin, 0.0);
+  EXPECT_LE(layout.panels[2].yMin, 0.4);
+  // Each sample is drawn: the energies, |p| = 0 on its axis, |L|.
+  const auto drawn = [&](size_t panel, double y, Color color) {
+    const Eigen::Vector2d at = layout.panels[panel].toPixel(0.0, y);
+    return hasColorNear(image, at.x() + 2.0, at.y(), color, 2, 60);
+  };
+  EXPECT_TRUE(drawn(0, 1.0, panels[0].series[0].color.value()));
+  EXPECT_TRUE(drawn(0, 1.5, panels[0].series[1].color.value()));
+  EXPECT_TRUE(drawn(0, 2.5, panels[0].series[2].color.value()));
+  EXPECT_TRUE(drawn(1, 0.0, panels[1].series[0].color.value()));
+  EXPECT_TRUE(drawn(2, 0.4, panels[2].series[0].color.value()));
+  // A signed quantity keeps its symmetric axis: components may be negative.
+  const PlotLayout components = layoutPlot(energyMomentumPanels(d, MomentumDisplay::Components));
+  EXPECT_LT(components.panels[1].yMin, 0.0);
+}
+
 TEST(Plot, LogScaleAndNonFiniteValuesAreHandled) {
   PlotPanel panel;
   panel.logY = true;

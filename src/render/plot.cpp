@@ -128,11 +128,14 @@ AxisData computeAxes(const PlotPanel& panel) {
   if (panel.xMax) xhi = *panel.xMax;
   if (panel.yMin) ylo = *panel.yMin;
   if (panel.yMax) yhi = *panel.yMax;
+  const bool xFloor = panel.nonNegativeX && !panel.xMin && xlo >= 0.0;
+  const bool yFloor = panel.nonNegativeY && !panel.yMin && ylo >= 0.0;
   if (xhi <= xlo) {
     const double pad = xlo == 0.0 ? 1.0 : 0.5 * std::abs(xlo);
     xlo -= pad;
     xhi += pad;
   }
+  if (xFloor && xlo < 0.0) xlo = 0.0;  // a lone sample at t = 0: [0, 1], not [-1, 1]
   AxisData axes;
   axes.x = linearTicks(xlo, xhi, 7);
   if (panel.logY) {
@@ -150,6 +153,10 @@ AxisData computeAxes(const PlotPanel& panel) {
       const double middle = 0.5 * (ylo + yhi);
       ylo = middle - 0.5 * least;
       yhi = middle + 0.5 * least;
+      if (yFloor && ylo < 0.0) {  // the same span, from zero
+        yhi -= ylo;
+        ylo = 0.0;
+      }
     }
   }
   if (yhi <= ylo) {
@@ -161,6 +168,7 @@ AxisData computeAxes(const PlotPanel& panel) {
   const double pad = 0.05 * (yhi - ylo);
   if (!panel.yMin) ylo -= pad;
   if (!panel.yMax) yhi += pad;
+  if (yFloor && ylo < 0.0) ylo = 0.0;
   axes.y = linearTicks(ylo, yhi, 5);
   if (panel.yMin) axes.y.min = *panel.yMin;
   if (panel.yMax) axes.y.max = *panel.yMax;
@@ -302,6 +310,16 @@ Image renderPlot(const std::vector<PlotPanel>& panels, const PlotOptions& option
       }
       const Color color = series.color.value_or(seriesColor(static_cast<int>(s)));
       canvas.polyline(points, options.lineWidth, color, series.dashed, &clip);
+      // A sample with no valid neighbour draws no line: a dot shows it (a run of no steps
+      // has one sample).
+      for (size_t i = 0; i < points.size(); ++i) {
+        const auto valid = [&](size_t k) { return !std::isnan(points[k].x()); };
+        if (!valid(i) || (i > 0 && valid(i - 1)) || (i + 1 < points.size() && valid(i + 1)))
+          continue;
+        const Eigen::Vector2d& q = points[i];
+        if (q.x() >= g.left && q.x() <= g.right && q.y() >= g.top && q.y() <= g.bottom)
+          canvas.disc(q.x(), q.y(), 1.8 * options.lineWidth, color);
+      }
     }
     // Frame, ticks and tick labels.
     canvas.strokeRect(g.left, g.top, g.right, g.bottom, 1.2, kAxis);
@@ -384,8 +402,10 @@ std::vector<PlotPanel> energyMomentumPanels(const EnergyMomentumSeries& d,
   for (PlotPanel* panel : {&energy, &linear, &angular}) {
     panel->minRelativeSpan = 1e-3;
     panel->minSpan = 1e-9;
+    panel->nonNegativeX = true;
   }
   if (momentum == MomentumDisplay::Magnitude) {
+    linear.nonNegativeY = angular.nonNegativeY = true;
     linear.yLabel = "|p| (kg m/s)";
     linear.series = {{"|p|", d.time, magnitude(d.px, d.py, d.pz), seriesColor(2), false}};
     angular.yLabel = "|L| (kg m\u00b2/s)";

@@ -36,6 +36,10 @@ struct PlotPanel {
   /// noise on a conserved quantity is drawn as the flat line it is, not as a signal.
   double minSpan = 0.0;
   double minRelativeSpan = 0.0;
+  /// Quantities that cannot be negative (time, a magnitude): an automatic axis stops at
+  /// zero rather than padding a lone sample or a zero series into negative values.
+  bool nonNegativeX = false;
+  bool nonNegativeY = false;
 };
 
 struct PlotOptions {
