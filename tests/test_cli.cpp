@@ -950,6 +950,41 @@ TEST_F(CliFigureImage, Figure10ShowsRestAndBothTorques) {
   EXPECT_LT(redness(p[2]), redness(p[0]) - 10.0);
 }
 
+TEST_F(Cli, Figure7PlotsEachMomentumInItsUnitsShadesThePullsAndSaysTheSystemRings) {
+  // A review found |p| (kg m/s) and |L| (kg m^2/s) on one axis labelled "momentum", the last
+  // pull's |p| printed as "before the next" pull (there is none: it is the run's end), and
+  // nothing said of the paper's "over-damped", which a damping ratio of 0.01 is not.
+  const Result r = run("reproduce figure7 --quick --out " + path("f7"));
+  ASSERT_EQ(r.status, 0) << r.err;
+  EXPECT_NE(r.out.find("kg m/s at the end of the run"), std::string::npos) << r.out;
+  EXPECT_NE(r.out.find("under-damped"), std::string::npos) << r.out;
+  std::ifstream in(path("f7/figure7.json"));
+  const auto j = nlohmann::json::parse(in);
+  const auto& pulls = j.at("pulls");
+  ASSERT_EQ(pulls.size(), 3u);
+  EXPECT_TRUE(pulls[0].contains("momentum_before_next_pull"));
+  EXPECT_TRUE(pulls[2].contains("momentum_at_end"));
+  EXPECT_NEAR(pulls[2].at("momentum_at_end").get<double>(), j.at("momentum_end").get<double>(),
+              1e-12);
+  // gamma = rho / (2 mu) = 0.04 / s against the slowest mode's omega of a few rad/s.
+  EXPECT_NEAR(j.at("gamma").get<double>(), 0.04, 1e-12);
+  EXPECT_GT(j.at("slowest_mode_omega").get<double>(), 1.0);
+  EXPECT_LT(j.at("damping_ratio").get<double>(), 0.05);
+  // Three panels (energy, |p|, |L|), each with the pulls shaded: the band's colour appears
+  // in each third of the image, left of the legend.
+  const auto image = zsculpt::render::readPng(path("f7/figure7.png"));
+  ASSERT_EQ(image.height, 3 * 380);
+  for (int k = 0; k < 3; ++k) {
+    int shaded = 0;
+    for (int y = k * 380; y < (k + 1) * 380; ++y)
+      for (int x = 0; x < image.width * 3 / 4; ++x) {
+        const auto p = image.pixel(x, y);
+        shaded += p[0] > 240 && p[1] > 225 && p[1] < 245 && p[2] > 180 && p[2] < 215;
+      }
+    EXPECT_GT(shaded, 2000) << "panel " << k;
+  }
+}
+
 TEST_F(Cli, RunawayEnergyIsCaughtBeforeTheStateIsNonFinite) {
   // Equation 3 above its stable period: the energy grows by a constant factor per step.
   // The guard stops it while every number is still finite and writes a checkpoint from

@@ -201,6 +201,8 @@ Metrics computeMetrics(const std::vector<PlotPanel>& panels, const std::vector<A
     for (const Series& s : panels[p].series) {
       legendWidth = std::max(legendWidth, measure.textWidth(s.name, m.small));
     }
+    if (!panels[p].bands.empty() && !panels[p].bandLabel.empty())
+      legendWidth = std::max(legendWidth, measure.textWidth(panels[p].bandLabel, m.small));
   }
   const bool anyYLabel = std::any_of(panels.begin(), panels.end(),
                                      [](const PlotPanel& p) { return !p.yLabel.empty(); });
@@ -287,6 +289,14 @@ Image renderPlot(const std::vector<PlotPanel>& panels, const PlotOptions& option
     const PlotPanel& panel = panels[p];
     const PanelGeometry& g = layout.panels[p];
     const AxisData& a = axes[p];
+    // Bands behind the grid and the curves, clipped to the data area.
+    for (const Band& band : panel.bands) {
+      const double x0 =
+          std::clamp(g.toPixel(std::min(band.x0, band.x1), g.yMin).x(), g.left, g.right);
+      const double x1 =
+          std::clamp(g.toPixel(std::max(band.x0, band.x1), g.yMin).x(), g.left, g.right);
+      if (x1 > x0) canvas.fillRect(x0, g.top, x1, g.bottom, panel.bandColor);
+    }
     // Grid.
     for (double v : a.y.values) {
       if (v < g.yMin || v > g.yMax) continue;
@@ -362,6 +372,13 @@ Image renderPlot(const std::vector<PlotPanel>& panels, const PlotOptions& option
       canvas.polyline(swatch, options.lineWidth, color, series.dashed);
       canvas.text(x1 + 0.6 * m.font, ly, series.name, m.small, kText, Align::Start, Align::Center);
       ly += 1.5 * m.font;
+    }
+    if (!panel.bands.empty() && !panel.bandLabel.empty()) {
+      const double x0 = g.right + 1.0 * m.font;
+      const double x1 = x0 + 2.2 * m.font;
+      canvas.fillRect(x0, ly - 0.45 * m.font, x1, ly + 0.45 * m.font, panel.bandColor);
+      canvas.text(x1 + 0.6 * m.font, ly, panel.bandLabel, m.small, kText, Align::Start,
+                  Align::Center);
     }
   }
   if (layoutOut != nullptr) *layoutOut = layout;

@@ -23,6 +23,12 @@ struct Series {
   bool dashed = false;
 };
 
+/// An interval of x shaded behind the curves (when a load acts, say).
+struct Band {
+  double x0 = 0.0;
+  double x1 = 0.0;
+};
+
 struct PlotPanel {
   std::string title;
   std::string xLabel;
@@ -40,6 +46,10 @@ struct PlotPanel {
   /// zero rather than padding a lone sample or a zero series into negative values.
   bool nonNegativeX = false;
   bool nonNegativeY = false;
+  /// Shaded intervals, with one legend entry (bandLabel) when it is not empty.
+  std::vector<Band> bands;
+  std::string bandLabel;
+  Color bandColor = Color::hex(0xf6d98a, 0.45f);
 };
 
 struct PlotOptions {
