@@ -713,7 +713,9 @@ TEST_F(Cli, ARefusedRunMakesNoFolderAndNamesTheFlagAtFault) {
   expectOneLineError(run("demo --property foo --frames 2 --out " + path("demo")), 2,
                      "--property: unknown property 'foo'");
   expectOneLineError(run("reproduce figure4 --out " + path("figures")), 2,
-                     "unknown target 'figure4'");
+                     "figure4 is one of the paper's diagrams (figures 1, 2 and 4)");
+  expectOneLineError(run("reproduce figure11 --out " + path("figures")), 2,
+                     "unknown target 'figure11' (valid: table1, figure3");
   expectOneLineError(run("subdivide builtin:helix --out " + path("curve/h.stl")), 2,
                      "has no faces");
   expectOneLineError(

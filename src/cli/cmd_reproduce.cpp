@@ -29,13 +29,15 @@ const std::vector<std::pair<std::string, std::function<int(const ReproduceOption
 }  // namespace
 
 void addReproduceCommand(CLI::App& root, CommandList& commands) {
-  auto* app =
-      root.add_subcommand("reproduce", "the paper's tables and figures, as data and images");
+  auto* app = root.add_subcommand("reproduce",
+                                  "the paper's table 1 (CSV) and figures (data, JSON and images)");
   auto what = std::make_shared<std::string>();
   auto options = std::make_shared<ReproduceOptions>();
   std::string names;
   for (const auto& [name, fn] : targets()) names += (names.empty() ? "" : ", ") + name;
-  app->add_option("what", *what, "one of: " + names + ", all")->required();
+  app->add_option("what", *what,
+                  "one of: " + names + ", all (figures 1, 2 and 4 are diagrams, with no results)")
+      ->required();
   app->add_option("--out", options->out, "output folder")->required();
   app->add_flag("--quick", options->quick, "shorter runs (for tests)");
   commands.push_back({app, [what, options]() {
@@ -51,8 +53,14 @@ void addReproduceCommand(CLI::App& root, CommandList& commands) {
                         std::string valid;
                         for (const auto& [name, fn] : targets())
                           valid += (valid.empty() ? "" : ", ") + name;
-                        throw InvalidInputError("reproduce: unknown target '" + *what +
-                                                "' (valid: " + valid + ", all)");
+                        const bool diagram =
+                            *what == "figure1" || *what == "figure2" || *what == "figure4";
+                        throw InvalidInputError(
+                            "reproduce: " +
+                            (diagram ? *what + " is one of the paper's diagrams (figures 1, 2 "
+                                               "and 4), not a result to reproduce"
+                                     : "unknown target '" + *what + "'") +
+                            " (valid: " + valid + ", all)");
                       }});
 }
 
