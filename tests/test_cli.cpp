@@ -671,6 +671,32 @@ TEST_F(Cli, RenderWritesFramesOfTheAskedSizeAPlotAndTheDiagnostics) {
   EXPECT_GT(plot.height, 100);
 }
 
+TEST_F(Cli, RenderSaysTheSimulatedTimeApartFromTheWallTime) {
+  // "40 steps of 0.19 s (0.5 T_max) in 0.3 s" read as 0.3 s simulated: a review.
+  const Result r = run("render builtin:torus --out " + path("out") +
+                       " --frames 2 --steps 40 --size 160x100 --perturb 0.1 --no-progress");
+  ASSERT_EQ(r.status, 0) << r.err;
+  const auto at = r.out.find("simulated ");
+  ASSERT_NE(at, std::string::npos) << r.out;
+  std::istringstream line(r.out.substr(at + 10));
+  double simulated = 0.0, period = 0.0;
+  std::string s, in, steps, word, of;
+  long count = 0;
+  line >> simulated >> s >> in >> count >> steps >> of >> period;
+  EXPECT_EQ(count, 40);
+  EXPECT_NEAR(simulated, 40 * period, 1e-5 * simulated) << r.out;  // six digits printed
+  EXPECT_NE(r.out.find("; wall time "), std::string::npos) << r.out;
+}
+
+TEST_F(Cli, InfoSaysWhichPeriodTheStepRatioScales) {
+  const Result r = run("info builtin:dodecahedron");
+  ASSERT_EQ(r.status, 0) << r.err;
+  EXPECT_NE(r.out.find("T_max (equation 5, the bound --dt-ratio scales) 0.447214 s; the linear "
+                       "stability limit sqrt(12 / lambda_max) 0.478727 s"),
+            std::string::npos)
+      << r.out;
+}
+
 TEST_F(Cli, RenderOfAStillModelGivesIdenticalFrames) {
   const Result r = run("render builtin:dodecahedron --out " + path("out") +
                        " --frames 2 --every 25 --size 240x180 --property stiffness --json");

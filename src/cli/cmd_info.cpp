@@ -74,8 +74,8 @@ int runInfo(const ModelOptions& options, bool json) {
             << p.stiffness.maxCoeff() << ", angular stiffness " << p.angularStiffness.minCoeff()
             << " .. " << p.angularStiffness.maxCoeff() << ", damping " << p.damping.minCoeff()
             << " .. " << p.damping.maxCoeff() << "\n"
-            << "  critical sampling period T_max (equation 5) " << tMax
-            << " s, from the largest eigenvalue " << tTight << " s\n";
+            << "  critical sampling period T_max (equation 5, the bound --dt-ratio scales) " << tMax
+            << " s; the linear stability limit sqrt(12 / lambda_max) " << tTight << " s\n";
   return 0;
 }
 

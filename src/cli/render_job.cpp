@@ -380,7 +380,9 @@ int reportRenderJob(const RenderJobOptions& o, const RenderJobResult& r,
     }
     std::cout << "\ndiagnostics: " << r.diagnostics << "\nplot: " << r.plot << "\n";
     if (!r.stateOut.empty()) std::cout << "state: " << r.stateOut << "\n";
-    std::cout << r.steps << " steps of " << r.period << " s (" << r.period / r.tMax << " T_max) in "
+    // Simulated time first: "N steps ... in W s" read as W seconds simulated.
+    std::cout << "simulated " << static_cast<double>(r.steps) * r.period << " s in " << r.steps
+              << " steps of " << r.period << " s (" << r.period / r.tMax << " T_max); wall time "
               << r.wallSeconds << " s\n";
   }
   if (r.diverged) {
