@@ -688,6 +688,29 @@ TEST_F(Cli, RenderSaysTheSimulatedTimeApartFromTheWallTime) {
   EXPECT_NE(r.out.find("; wall time "), std::string::npos) << r.out;
 }
 
+TEST_F(Cli, RenderSaysWhenEveryAndFramesStopTheFramesBeforeTheRunEnds) {
+  // --every 3 --frames 4 --steps 100 wrote frames at steps 0 to 9 and ran to step 100
+  // without a word: a review.
+  const Result r =
+      run("render builtin:grid:4 --perturb 0.1 --every 3 --frames 4 --steps 100 "
+          "--size 160x100 --no-progress --json --out " +
+          path("out"));
+  ASSERT_EQ(r.status, 0) << r.err;
+  EXPECT_EQ(nlohmann::json::parse(r.out)["frames"].size(), 4u);
+  EXPECT_NE(r.err.find("--every 3 --frames 4: frames at steps 0 to 9; the run goes on to step "
+                       "100 with no more frames"),
+            std::string::npos)
+      << r.err;
+  // Frames that reach the end say nothing.
+  const Result whole =
+      run("render builtin:grid:4 --perturb 0.1 --every 25 --steps 100 "
+          "--size 160x100 --no-progress --json --out " +
+          path("whole"));
+  ASSERT_EQ(whole.status, 0) << whole.err;
+  EXPECT_EQ(nlohmann::json::parse(whole.out)["frames"].size(), 5u);
+  EXPECT_EQ(whole.err.find("no more frames"), std::string::npos) << whole.err;
+}
+
 TEST_F(Cli, InfoSaysWhichPeriodTheStepRatioScales) {
   const Result r = run("info builtin:dodecahedron");
   ASSERT_EQ(r.status, 0) << r.err;

@@ -20,9 +20,12 @@ void addRenderCommand(CLI::App& root, CommandList& commands) {
   o->model.addTo(app);
   o->run.addTo(app);
   app->add_option("--out", o->out, "output folder (created when missing)")->required();
-  app->add_option("--frames", o->frames, "frames to write (default 30, spread over the run)");
+  app->add_option("--frames", o->frames,
+                  "frames to write (default 30), evenly spaced from the start to the end of "
+                  "the run; one frame shows the end");
   app->add_option("--every", o->every,
-                  "steps between frames (with --frames N and no run length: N frames)");
+                  "steps between frames, from step 0; with --frames N at most N frames (and "
+                  "with no run length, a run just long enough for them)");
   app->add_option("--size", o->size, "image size WxH (default 1280x720)");
   app->add_option("--property", o->property,
                   "colour the surface by a property: mass, damping, stiffness, angular_stiffness, "

@@ -54,6 +54,10 @@ std::vector<long> frameSteps(const RenderJobOptions& o, RunOptions::Resolved& ru
         throw InvalidInputError("--every: " + std::to_string(k) + " would write more than " +
                                 std::to_string(kMaxFrames) + " frames");
     }
+    if (at.back() < steps)
+      warn("--every " + std::to_string(k) + " --frames " + std::to_string(at.size()) +
+           ": frames at steps 0 to " + std::to_string(at.back()) + "; the run goes on to step " +
+           std::to_string(steps) + " with no more frames");
     return at;
   }
   const long n = o.frames.value_or(kDefaultFrames);
