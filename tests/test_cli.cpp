@@ -113,6 +113,35 @@ TEST_F(Cli, InfoOfAnAssimpFileWeldsIt) {
   EXPECT_EQ(j["faces"], 6);
 }
 
+TEST_F(Cli, UpTurnsAYUpFileToStandOnZ) {
+  // A Y-up OBJ (most modelling tools write them): a column along +y lay on its side.
+  {
+    std::ofstream obj(path("column.obj"));
+    obj << "v 0 0 0\nv 1 0 0\nv 1 4 0\nv 0 4 0\nf 1 2 3 4\n";
+  }
+  const auto box = [](const nlohmann::json& j) {
+    return std::make_pair(j["bbox_min"].get<std::vector<double>>(),
+                          j["bbox_max"].get<std::vector<double>>());
+  };
+  const Result asIs = run("info " + path("column.obj") + " --json");
+  ASSERT_EQ(asIs.status, 0) << asIs.err;
+  EXPECT_EQ(nlohmann::json::parse(asIs.out)["up_axis"], "z");
+  EXPECT_EQ(box(nlohmann::json::parse(asIs.out)).second, (std::vector<double>{1, 4, 0}));
+  const Result up = run("info " + path("column.obj") + " --up y --json");
+  ASSERT_EQ(up.status, 0) << up.err;
+  const auto j = nlohmann::json::parse(up.out);
+  EXPECT_EQ(j["up_axis"], "y");
+  EXPECT_EQ(box(j).second, (std::vector<double>{1, 0, 4}));  // standing: 4 tall along z
+  expectOneLineError(run("info " + path("column.obj") + " --up w"), 2,
+                     "--up: 'w' is not an axis (auto, x, -x, y, -y, z or -z)");
+  // A glTF file is Y-up by its specification: saved (written Y-up) and read back, the grid
+  // lies as it did.
+  ASSERT_EQ(run("subdivide builtin:grid:3 --levels 0 --out " + path("g.gltf")).status, 0);
+  const auto g = nlohmann::json::parse(run("info " + path("g.gltf") + " --json").out);
+  EXPECT_EQ(g["up_axis"], "y");
+  EXPECT_EQ(box(g).second, (std::vector<double>{2, 2, 0}));
+}
+
 TEST_F(Cli, SimulateJsonSummaryAndFiles) {
   const Result r =
       run("simulate builtin:torus --mass 0.1 --perturb 0.05 --seed 3 --steps 200 "

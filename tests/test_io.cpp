@@ -195,8 +195,9 @@ TEST(MeshImport, WeldsAcrossMeshesOfAFile) {
 TEST(MeshImport, AppliesNodeTransformsBeforeWelding) {
   // One square instanced three times: at the origin, by a node matrix (x + 1), and by
   // two nested translations (x + 1 + 1).
+  // (The file is Y-up; kept as it is here, turned in YUpFilesStandOnZ.)
   MeshLoadReport report;
-  const Mesh strip = loadMesh(data("instances.dae"), &report);
+  const Mesh strip = loadMesh(data("instances.dae"), &report, UpAxis::PlusZ);
   EXPECT_EQ(report.meshesMerged, 3);
   EXPECT_EQ(strip.numVertices(), 8);
   EXPECT_EQ(strip.numEdges(), 10);
@@ -204,6 +205,60 @@ TEST(MeshImport, AppliesNodeTransformsBeforeWelding) {
   const BoundingBox box = strip.boundingBox();
   EXPECT_EQ(box.min, Vec3(0, 0, 0));
   EXPECT_EQ(box.max, Vec3(3, 1, 0));
+}
+
+TEST(MeshImport, YUpFilesStandOnZ) {
+  // A review: Y-up models (glTF by its specification, Collada as assimp delivers it) lay on
+  // their side, and gravity 0,0,-9.81 acted sideways on them. The same Collada strip, Y-up:
+  // its squares in the file's xy plane stand in the xz plane, +y turned to +z.
+  MeshLoadReport report;
+  const Mesh strip = loadMesh(data("instances.dae"), &report);
+  EXPECT_EQ(report.up, UpAxis::PlusY);
+  const BoundingBox box = strip.boundingBox();
+  EXPECT_EQ(box.min, Vec3(0, 0, 0));
+  EXPECT_EQ(box.max, Vec3(3, 0, 1));
+  EXPECT_FALSE(std::signbit(box.max.y()));  // turned zeros stay +0
+  // An OBJ has no convention: as it is, unless told.
+  const Mesh tri = loadMesh(data("signed_zero.obj"), &report);
+  EXPECT_EQ(report.up, UpAxis::PlusZ);
+  const Mesh turned = loadMesh(data("signed_zero.obj"), &report, UpAxis::PlusY);
+  EXPECT_EQ(report.up, UpAxis::PlusY);
+  for (Index v = 0; v < tri.numVertices(); ++v)
+    EXPECT_EQ(
+        turned.positions().row(v),
+        Vec3(tri.positions()(v, 0), -tri.positions()(v, 2), tri.positions()(v, 1)).transpose());
+}
+
+TEST(MeshImport, EveryUpAxisIsTurnedToPlusZByARotation) {
+  const std::pair<UpAxis, Vec3> axes[] = {
+      {UpAxis::PlusX, Vec3::UnitX()}, {UpAxis::MinusX, -Vec3::UnitX()},
+      {UpAxis::PlusY, Vec3::UnitY()}, {UpAxis::MinusY, -Vec3::UnitY()},
+      {UpAxis::PlusZ, Vec3::UnitZ()}, {UpAxis::MinusZ, -Vec3::UnitZ()}};
+  for (const auto& [axis, direction] : axes) {
+    SCOPED_TRACE(upAxisName(axis));
+    EXPECT_EQ(parseUpAxis(upAxisName(axis)), axis);
+    Points p(4, 3);
+    p.row(0) = direction.transpose();
+    p.row(1) = Vec3::UnitX().transpose();
+    p.row(2) = Vec3::UnitY().transpose();
+    p.row(3) = Vec3::UnitZ().transpose();
+    turnUpToZ(p, axis);
+    EXPECT_EQ(p.row(0), Vec3::UnitZ().transpose());
+    // The images of the basis: a rotation (orthonormal, determinant +1), so windings and
+    // signed volumes keep their sign.
+    Mat3 r;
+    r << p.row(1).transpose(), p.row(2).transpose(), p.row(3).transpose();
+    EXPECT_TRUE((r.transpose() * r).isIdentity(0.0));
+    EXPECT_EQ(r.determinant(), 1.0);
+  }
+  EXPECT_EQ(parseUpAxis("+Y"), UpAxis::PlusY);
+  EXPECT_EQ(parseUpAxis("auto"), UpAxis::Auto);
+  try {
+    parseUpAxis("w");
+    ADD_FAILURE() << "w parsed";
+  } catch (const InvalidInputError& e) {
+    EXPECT_STREQ(e.what(), "'w' is not an axis (auto, x, -x, y, -y, z or -z)");
+  }
 }
 
 TEST(MeshImport, SignedZerosWeldTogether) {
@@ -759,6 +814,34 @@ TEST_F(MeshExport, RoundTripKeepsPositionsAndTopology) {
                                               "fins.obj", "fins.ply", "fins.gltf", "fins.glb"}));
 }
 
+TEST_F(MeshExport, GltfAndColladaAreWrittenYUp) {
+  // Their readers take +y as up: the torus (axis z) is written with its axis along y, and
+  // read back (Auto) as it was. The round trip above checks the positions; here the file.
+  const Mesh torus = makeTorus(10, 10);
+  for (const std::string ext : {"gltf", "glb", "dae"}) {
+    SCOPED_TRACE(ext);
+    const std::string file = path("torus." + ext);
+    saveMesh(torus, file);
+    MeshLoadReport report;
+    const Mesh raw = loadMesh(file, &report, UpAxis::PlusZ);
+    // The file's y extent is the torus's z extent (along its axis), and its z the y.
+    const Vec3 extent = raw.boundingBox().max - raw.boundingBox().min;
+    const Vec3 own = torus.boundingBox().max - torus.boundingBox().min;
+    EXPECT_NEAR(extent.x(), own.x(), 1e-6);
+    EXPECT_NEAR(extent.y(), own.z(), 1e-6);
+    EXPECT_NEAR(extent.z(), own.y(), 1e-6);
+    EXPECT_GT(own.y(), 2.0 * own.z());
+    const Mesh back = loadMesh(file, &report);
+    EXPECT_EQ(report.up, UpAxis::PlusY);
+    if (ext != "dae") {
+      expectFloatPositions(back.positions(), torus.positions(), true);
+    } else {  // Collada does not keep the vertex order: the box, then
+      EXPECT_TRUE(back.boundingBox().min.isApprox(torus.boundingBox().min, 1e-6));
+      EXPECT_TRUE(back.boundingBox().max.isApprox(torus.boundingBox().max, 1e-6));
+    }
+  }
+}
+
 TEST_F(MeshExport, CurvesAndSolidsKeepTheirEdges) {
   for (const auto& [name, mesh] : std::vector<std::pair<std::string, Mesh>>{
            {"helix", makeHelix(20)}, {"lattice", makeLattice(3)}}) {
@@ -1095,6 +1178,7 @@ void expectSameUniform(const UniformProperties& a, const UniformProperties& b) {
 void expectSameScene(const SceneDescription& a, const SceneDescription& b) {
   EXPECT_EQ(a.description, b.description);
   EXPECT_EQ(a.mesh, b.mesh);
+  EXPECT_EQ(a.up, b.up);
   expectSameUniform(a.properties, b.properties);
   EXPECT_TRUE(a.overrides == b.overrides);
   EXPECT_TRUE(a.constraints == b.constraints);
@@ -1195,6 +1279,7 @@ TEST_F(SceneFile, SaveAndLoadRoundTrip) {
   SceneDescription scene;
   scene.description = "round trip, \"quoted\" and unicode: \xc3\xa9";
   scene.mesh = "builtin:grid:5";
+  scene.up = UpAxis::MinusX;
   scene.properties.mass = 0.123456789012345678;
   scene.properties.damping = 1e-300;
   scene.properties.stiffness = 7.0 / 3.0;
@@ -1253,6 +1338,25 @@ TEST_F(SceneFile, SaveAndLoadRoundTrip) {
   saveScene(back, path("again.json"));
   EXPECT_EQ(readText(path("again.json")), readText(path("scene.json")));
   EXPECT_EQ(entries(), (std::set<std::string>{"scene.json", "again.json"}));
+}
+
+TEST_F(SceneFile, UpTurnsTheMeshAndABadAxisIsNamed) {
+  const SceneDescription y = parseScene(R"({"mesh": "builtin:grid:3", "up": "y"})", "s.json");
+  EXPECT_EQ(y.up, UpAxis::PlusY);
+  MeshLoadReport report;
+  const Mesh turned = loadMeshSource(y.mesh, &report, y.up);
+  EXPECT_EQ(report.up, UpAxis::PlusY);
+  // The grid in the xy plane stands in the xz plane (y turned to z, z to -y).
+  EXPECT_EQ(turned.boundingBox().max, Vec3(2, 0, 2));
+  EXPECT_EQ(parseScene(R"({"mesh": "builtin:grid:3"})", "s.json").up, UpAxis::Auto);
+  EXPECT_EQ(sceneToJson(y, "").at("up"), "y");
+  EXPECT_FALSE(sceneToJson(parseScene(R"({"mesh": "builtin:grid:3"})", ""), "").contains("up"));
+  try {
+    (void)parseScene(R"({"mesh": "builtin:grid:3", "up": "sideways"})", "s.json");
+    ADD_FAILURE() << "parsed";
+  } catch (const InvalidInputError& e) {
+    EXPECT_STREQ(e.what(), "s.json: /up: 'sideways' is not an axis (auto, x, -x, y, -y, z or -z)");
+  }
 }
 
 TEST_F(SceneFile, PaintedPropertiesSurviveSaveAndLoad) {

@@ -98,7 +98,7 @@ SessionSetup setupFromHeader(const json& header, const std::string& path,
   if (header.contains("mesh_hash"))
     meshHashOut = parseHex(header.at("mesh_hash"), where + ": mesh_hash");
   io::MeshLoadReport loadReport;
-  setup.mesh = io::loadMeshSource(setup.scene.mesh, &loadReport);
+  setup.mesh = io::loadMeshSource(setup.scene.mesh, &loadReport, setup.scene.up);
   if (meshHashOut && meshHash(setup.mesh) != *meshHashOut)
     throw InvalidInputError(
         path + ": the mesh " + setup.scene.mesh +
@@ -107,6 +107,11 @@ SessionSetup setupFromHeader(const json& header, const std::string& path,
              ? "; this version winds its faces consistently on import (" +
                    std::to_string(loadReport.facesReversed) +
                    " reversed), which a recording made before that cannot replay"
+             : "") +
+        (loadReport.up != io::UpAxis::PlusZ
+             ? "; the file's up axis " + io::upAxisName(loadReport.up) +
+                   " is turned to +z on import, which a recording made before that cannot "
+                   "replay"
              : ""));
   if (header.contains("initial_state")) {
     const json& s = header.at("initial_state");

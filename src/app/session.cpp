@@ -73,7 +73,7 @@ double resolvePeriod(const io::SceneDescription& scene, const Model& model) {
 
 SessionSetup sessionSetupFromScene(io::SceneDescription scene) {
   SessionSetup setup;
-  setup.mesh = io::loadMeshSource(scene.mesh);
+  setup.mesh = io::loadMeshSource(scene.mesh, nullptr, scene.up);
   const Model model = io::buildModel(scene, setup.mesh);
   setup.scheme = toScheme(scene.simulation.scheme);
   setup.period = resolvePeriod(scene, model);

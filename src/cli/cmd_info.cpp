@@ -47,6 +47,7 @@ int runInfo(const ModelOptions& options, bool json) {
               << "  \"faces_reversed\": " << loaded.report.facesReversed << ",\n"
               << "  \"non_orientable_components\": " << loaded.report.nonOrientableComponents
               << ",\n"
+              << "  \"up_axis\": \"" << io::upAxisName(loaded.report.up) << "\",\n"
               << "  \"t_max\": " << jsonNumber(tMax) << ",\n"
               << "  \"t_max_tight\": " << jsonNumber(tTight) << "\n"
               << "}\n";
@@ -66,6 +67,9 @@ int runInfo(const ModelOptions& options, bool json) {
               << loaded.report.degenerateFacesDropped << " degenerate faces dropped, "
               << loaded.report.facesReversed
               << " faces reversed to wind as their neighbours (a closed sheet outward)\n";
+  if (loaded.report.up != io::UpAxis::PlusZ)
+    std::cout << "  up axis " << io::upAxisName(loaded.report.up)
+              << " in the file, turned to +z (--up z keeps the file's coordinates)\n";
   if (loaded.report.nonOrientableComponents)
     std::cout << "  " << loaded.report.nonOrientableComponents
               << " non-orientable component(s): no winding agrees across every edge\n";

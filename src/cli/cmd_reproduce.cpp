@@ -40,28 +40,25 @@ void addReproduceCommand(CLI::App& root, CommandList& commands) {
       ->required();
   app->add_option("--out", options->out, "output folder")->required();
   app->add_flag("--quick", options->quick, "shorter runs (for tests)");
-  commands.push_back({app, [what, options]() {
-                        io::checkCreatableDirectory(options->out);
-                        if (*what == "all") {
-                          int status = 0;
-                          for (const auto& [name, fn] : targets())
-                            status = std::max(status, fn(*options));
-                          return status;
-                        }
-                        for (const auto& [name, fn] : targets())
-                          if (name == *what) return fn(*options);
-                        std::string valid;
-                        for (const auto& [name, fn] : targets())
-                          valid += (valid.empty() ? "" : ", ") + name;
-                        const bool diagram =
-                            *what == "figure1" || *what == "figure2" || *what == "figure4";
-                        throw InvalidInputError(
-                            "reproduce: " +
-                            (diagram ? *what + " is one of the paper's diagrams (figures 1, 2 "
-                                               "and 4), not a result to reproduce"
-                                     : "unknown target '" + *what + "'") +
-                            " (valid: " + valid + ", all)");
-                      }});
+  commands.push_back(
+      {app, [what, options]() {
+         io::checkCreatableDirectory(options->out);
+         if (*what == "all") {
+           int status = 0;
+           for (const auto& [name, fn] : targets()) status = std::max(status, fn(*options));
+           return status;
+         }
+         for (const auto& [name, fn] : targets())
+           if (name == *what) return fn(*options);
+         std::string valid;
+         for (const auto& [name, fn] : targets()) valid += (valid.empty() ? "" : ", ") + name;
+         const bool diagram = *what == "figure1" || *what == "figure2" || *what == "figure4";
+         throw InvalidInputError("reproduce: " +
+                                 (diagram ? *what + " is one of the paper's diagrams (figures 1, 2 "
+                                                    "and 4), not a result to reproduce"
+                                          : "unknown target '" + *what + "'") +
+                                 " (valid: " + valid + ", all)");
+       }});
 }
 
 }  // namespace zsculpt::cli

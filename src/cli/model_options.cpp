@@ -31,6 +31,9 @@ void ModelOptions::addTo(CLI::App* app, bool sourceOptional) {
   app->add_option("--gravity", gravity, "gravity GX,GY,GZ in m/s^2 (default off)")
       ->delimiter(',')
       ->expected(3);
+  app->add_option("--up", up,
+                  "the mesh file's up axis, turned to zsculpt's +z: auto, x, -x, y, -y, z or -z "
+                  "(default auto: y for glTF and Collada, the file's for FBX, z for the rest)");
 }
 
 LoadedModel ModelOptions::load() const {
@@ -71,7 +74,14 @@ LoadedModel ModelOptions::load() const {
     u.gravity = Vec3(gravity[0], gravity[1], gravity[2]);
     if (!u.gravity.allFinite()) throw InvalidInputError("--gravity: not finite");
   }
-  Mesh mesh = io::loadMeshSource(scene.mesh, &loaded.report);
+  if (!up.empty()) {
+    try {
+      scene.up = io::parseUpAxis(up);
+    } catch (const InvalidInputError& e) {
+      throw InvalidInputError(std::string("--up: ") + e.what());
+    }
+  }
+  Mesh mesh = io::loadMeshSource(scene.mesh, &loaded.report, scene.up);
   loaded.model = io::buildModel(scene, std::move(mesh));
   if (isScene) loaded.scene = std::move(scene);
   return loaded;

@@ -29,6 +29,7 @@ struct ModelOptions {
   std::optional<double> mass, damping, stiffness, angularStiffness, rigidity, stiffnessCap,
       restLengthScale;
   std::vector<double> gravity;
+  std::string up;  ///< --up: the file's up axis (io::parseUpAxis); empty: the scene's, or auto
 
   /// Registers the positional MESH|SCENE (required unless `sourceOptional`) and the flags.
   void addTo(CLI::App* app, bool sourceOptional = false);

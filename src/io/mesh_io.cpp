@@ -275,8 +275,26 @@ std::vector<std::vector<unsigned>> decodeNgons(const aiMesh& mesh, const GltfPri
   return polygons;
 }
 
+// The up axis a file's format implies (UpAxis::Auto): glTF is Y-up by its specification;
+// assimp turns a Collada file to Y-up whatever its <up_axis>; FBX names its own.
+UpAxis formatUp(const aiScene& scene, const std::string& name) {
+  const std::string ext = lowercaseExtension(name);
+  if (ext == "gltf" || ext == "glb" || ext == "dae" || ext == "zae") return UpAxis::PlusY;
+  if (ext == "fbx" && scene.mMetaData != nullptr) {
+    int axis = 1, sign = 1;
+    if (scene.mMetaData->Get("UpAxis", axis) && axis >= 0 && axis <= 2) {
+      (void)scene.mMetaData->Get("UpAxisSign", sign);
+      const UpAxis plus[] = {UpAxis::PlusX, UpAxis::PlusY, UpAxis::PlusZ};
+      const UpAxis minus[] = {UpAxis::MinusX, UpAxis::MinusY, UpAxis::MinusZ};
+      return sign < 0 ? minus[axis] : plus[axis];
+    }
+    return UpAxis::PlusY;  // FBX's default
+  }
+  return UpAxis::PlusZ;
+}
+
 Mesh meshFromScene(const aiScene& scene, const std::string& name, MeshLoadReport* report,
-                   const std::vector<GltfPrimitive>& gltf) {
+                   const std::vector<GltfPrimitive>& gltf, UpAxis up) {
   MeshLoadReport counts;
   Welder welder;
   std::vector<std::vector<Index>> faces;
@@ -378,6 +396,8 @@ Mesh meshFromScene(const aiScene& scene, const std::string& name, MeshLoadReport
   for (auto& face : faces)
     for (Index& c : face) c = newIndex[c];
   for (auto& edge : edges) edge = {newIndex[edge[0]], newIndex[edge[1]]};
+  counts.up = up == UpAxis::Auto ? formatUp(scene, name) : up;
+  turnUpToZ(points, counts.up);
   const OrientationReport orientation = orientFaces(points, faces);
   counts.facesReversed = orientation.facesReversed;
   counts.nonOrientableComponents = orientation.nonOrientableComponents;
@@ -1794,7 +1814,8 @@ std::string encodeMesh(const Mesh& mesh, const MeshLoadReport& report) {
                                  report.pointsAndLinesDropped,
                                  report.unusedVerticesDropped,
                                  report.facesReversed,
-                                 report.nonOrientableComponents};
+                                 report.nonOrientableComponents,
+                                 static_cast<std::int64_t>(report.up)};
   std::string out;
   put(out, header, std::size(header));
   put(out, mesh.positions().data(), static_cast<std::size_t>(mesh.positions().size()));
@@ -1813,7 +1834,7 @@ Mesh decodeMesh(const std::string& bytes, const std::string& name, MeshLoadRepor
     std::memcpy(data, bytes.data() + at, count * sizeof(*data));
     at += count * sizeof(*data);
   };
-  std::int64_t header[11];
+  std::int64_t header[12];
   take(header, std::size(header));
   for (std::int64_t count : header)
     if (count < 0 || count > std::numeric_limits<Index>::max()) throw IOError(garbled);
@@ -1843,6 +1864,10 @@ Mesh decodeMesh(const std::string& bytes, const std::string& name, MeshLoadRepor
                              static_cast<Index>(header[6]), static_cast<Index>(header[7]),
                              static_cast<Index>(header[8]), static_cast<Index>(header[9]),
                              static_cast<Index>(header[10])};
+  if (report != nullptr) {
+    if (header[11] > static_cast<std::int64_t>(UpAxis::MinusZ)) throw IOError(garbled);
+    report->up = static_cast<UpAxis>(header[11]);
+  }
   return Mesh(std::move(positions), faces, edges);
 }
 
@@ -1872,6 +1897,7 @@ struct ExportFormat {
   bool triangles = false;  // the format stores triangles only
   bool fans = false;       // write polygons as FB_ngon_encoding fans (glTF)
   bool wires = true;       // the format stores line primitives
+  bool yUp = false;        // its readers take +y as up (glTF, Collada): +z is turned to +y
 };
 
 ExportFormat exportFormat(const std::string& path) {
@@ -1883,11 +1909,11 @@ ExportFormat exportFormat(const std::string& path) {
   if (ext == "ply") return {"plyb"};
   // Binary STL keeps the float coordinates exactly.
   if (ext == "stl") return {"stlb", true, false, false};
-  if (ext == "gltf") return {"gltf2", true, true, true};
-  if (ext == "glb") return {"glb2", true, true, true};
+  if (ext == "gltf") return {"gltf2", true, true, true, true};
+  if (ext == "glb") return {"glb2", true, true, true, true};
   // Other assimp 5.2 exporters are not offered: pbrt crashes, FBX and 3MF write files
   // assimp cannot read back, assjson's .json would pass for a scene. Collada round-trips.
-  if (ext == "dae") return {"collada"};
+  if (ext == "dae") return {"collada", false, false, true, true};
   throw IOError(path + ": unsupported export format" + (ext.empty() ? "" : " '." + ext + "'") +
                 " (use .obj, .ply, .stl, .gltf, .glb or .dae)");
 }
@@ -2036,10 +2062,11 @@ std::string finishGltf(const std::string& path, const aiExportDataBlob& blob, bo
 
 }  // namespace
 
-Mesh loadMesh(const std::string& path, MeshLoadReport* report) {
+Mesh loadMesh(const std::string& path, MeshLoadReport* report, UpAxis up) {
   // In a child process (isolated.h): a fault in assimp costs the import, not the session.
   const char* inProcess = std::getenv("ZSCULPT_IMPORT_IN_PROCESS");
-  if (inProcess != nullptr && std::string(inProcess) == "1") return loadMeshInProcess(path, report);
+  if (inProcess != nullptr && std::string(inProcess) == "1")
+    return loadMeshInProcess(path, report, up);
   std::error_code ec;
   const std::uintmax_t size = fs::is_regular_file(path, ec) ? fs::file_size(path, ec) : 0;
   IsolationLimits limits;
@@ -2059,14 +2086,14 @@ Mesh loadMesh(const std::string& path, MeshLoadReport* report) {
       path,
       [&] {
         MeshLoadReport childReport;
-        const Mesh mesh = loadMeshInProcess(path, &childReport);
+        const Mesh mesh = loadMeshInProcess(path, &childReport, up);
         return encodeMesh(mesh, childReport);
       },
       limits);
   return decodeMesh(answer, path, report);
 }
 
-Mesh loadMeshInProcess(const std::string& path, MeshLoadReport* report) {
+Mesh loadMeshInProcess(const std::string& path, MeshLoadReport* report, UpAxis up) {
   std::error_code ec;
   const auto status = fs::status(path, ec);
   if (!fs::exists(status)) throw IOError(path + ": no such file");
@@ -2088,11 +2115,11 @@ Mesh loadMeshInProcess(const std::string& path, MeshLoadReport* report) {
   refuseForeignReader(importer, path, path);
   const aiScene* scene = guardedRead(path, [&] { return importer.ReadFile(path, kImportFlags); });
   if (scene == nullptr) readFailed(path, ext, importer);
-  return meshFromScene(*scene, path, report, gltfPrimitivesOfFile(path, ext));
+  return meshFromScene(*scene, path, report, gltfPrimitivesOfFile(path, ext), up);
 }
 
 Mesh loadMeshFromMemory(const void* data, std::size_t size, const std::string& hint,
-                        MeshLoadReport* report) {
+                        MeshLoadReport* report, UpAxis up) {
   const std::string name = "<memory>." + hint;
   if (data == nullptr || size == 0) throw IOError(name + ": the data is empty");
   const std::string ext = lowercase(hint);
@@ -2135,15 +2162,83 @@ Mesh loadMeshFromMemory(const void* data, std::size_t size, const std::string& h
   std::vector<GltfPrimitive> gltf;
   if (ext == "gltf" || ext == "glb")
     gltf = gltfPrimitives(std::string_view(static_cast<const char*>(data), size), ext == "glb");
-  return meshFromScene(*scene, name, report, gltf);
+  return meshFromScene(*scene, name, report, gltf, up);
 }
 
-Mesh loadMeshSource(const std::string& source, MeshLoadReport* report) {
+Mesh loadMeshSource(const std::string& source, MeshLoadReport* report, UpAxis up) {
   if (isBuiltinName(source)) {
-    if (report != nullptr) *report = MeshLoadReport{};
-    return makeBuiltin(source);
+    Mesh mesh = makeBuiltin(source);
+    MeshLoadReport built;
+    built.up = up == UpAxis::Auto ? UpAxis::PlusZ : up;
+    if (built.up != UpAxis::PlusZ) {
+      Points points = mesh.positions();
+      turnUpToZ(points, built.up);
+      mesh.setPositions(points);
+    }
+    if (report != nullptr) *report = built;
+    return mesh;
   }
-  return loadMesh(source, report);
+  return loadMesh(source, report, up);
+}
+
+UpAxis parseUpAxis(const std::string& text) {
+  std::string t = lowercase(text);
+  if (!t.empty() && t[0] == '+') t.erase(0, 1);
+  const std::pair<const char*, UpAxis> names[] = {
+      {"auto", UpAxis::Auto}, {"x", UpAxis::PlusX}, {"-x", UpAxis::MinusX}, {"y", UpAxis::PlusY},
+      {"-y", UpAxis::MinusY}, {"z", UpAxis::PlusZ}, {"-z", UpAxis::MinusZ}};
+  for (const auto& [name, axis] : names)
+    if (t == name) return axis;
+  throw InvalidInputError("'" + text + "' is not an axis (auto, x, -x, y, -y, z or -z)");
+}
+
+std::string upAxisName(UpAxis up) {
+  switch (up) {
+    case UpAxis::Auto:
+      return "auto";
+    case UpAxis::PlusX:
+      return "x";
+    case UpAxis::MinusX:
+      return "-x";
+    case UpAxis::PlusY:
+      return "y";
+    case UpAxis::MinusY:
+      return "-y";
+    case UpAxis::PlusZ:
+      return "z";
+    case UpAxis::MinusZ:
+      return "-z";
+  }
+  return "auto";
+}
+
+void turnUpToZ(Points& points, UpAxis up) {
+  // Each a proper rotation (determinant +1, so windings and volumes keep their sign) that
+  // takes the named axis to +z: a quarter turn about x or y, or a half turn about x. 0 - c
+  // rather than -c: a zero stays +0, as welding left it.
+  for (Index i = 0; i < points.rows(); ++i) {
+    const double x = points(i, 0), y = points(i, 1), z = points(i, 2);
+    switch (up) {
+      case UpAxis::Auto:
+      case UpAxis::PlusZ:
+        return;
+      case UpAxis::PlusY:  // +90 degrees about x
+        points.row(i) << x, 0.0 - z, y;
+        break;
+      case UpAxis::MinusY:  // -90 degrees about x
+        points.row(i) << x, z, 0.0 - y;
+        break;
+      case UpAxis::PlusX:  // -90 degrees about y
+        points.row(i) << 0.0 - z, y, x;
+        break;
+      case UpAxis::MinusX:  // +90 degrees about y
+        points.row(i) << z, y, 0.0 - x;
+        break;
+      case UpAxis::MinusZ:  // 180 degrees about x
+        points.row(i) << x, 0.0 - y, 0.0 - z;
+        break;
+    }
+  }
 }
 
 void checkMeshOutput(const std::string& path) {
@@ -2160,7 +2255,20 @@ void saveMesh(const Mesh& mesh, const std::string& path) {
   // has none.
   const bool withPoints = format.id == "objnomtl" || format.fans;
   std::vector<unsigned> rotated;
-  const auto scene = exportScene(mesh, format, withPoints, rotated);
+  // Y-up formats: +z up turned to +y up, the inverse of turnUpToZ(PlusY), so loadMesh's Auto
+  // reads the file back as it was.
+  std::optional<Mesh> turned;
+  if (format.yUp) {
+    Points points = mesh.positions();
+    for (Index i = 0; i < points.rows(); ++i) {
+      const double y = points(i, 1), z = points(i, 2);
+      points(i, 1) = z;
+      points(i, 2) = 0.0 - y;
+    }
+    turned.emplace(mesh);
+    turned->setPositions(points);
+  }
+  const auto scene = exportScene(turned ? *turned : mesh, format, withPoints, rotated);
   Assimp::Exporter exporter;
   // STL: assimp's triangulation handles concave polygons, unlike a plain fan.
   const unsigned preprocessing = format.triangles && !format.fans ? aiProcess_Triangulate : 0u;

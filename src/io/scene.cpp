@@ -606,9 +606,10 @@ std::string resolveMesh(const std::string& mesh, const std::string& sceneFile) {
 
 SceneDescription sceneFromJson(const Json& json, const std::string& sceneFile) {
   const SceneReader r(sceneFile);
-  r.object(json, "",
-           {"version", "description", "mesh", "properties", "vertex_properties", "rest_lengths",
-            "rest_angles", "constraints", "forces", "torques", "edits", "simulation", "camera"});
+  r.object(
+      json, "",
+      {"version", "description", "mesh", "up", "properties", "vertex_properties", "rest_lengths",
+       "rest_angles", "constraints", "forces", "torques", "edits", "simulation", "camera"});
   SceneDescription scene;
   scene.sourcePath = sceneFile;
   if (const Json* v = find(json, "version")) {
@@ -625,6 +626,14 @@ SceneDescription sceneFromJson(const Json& json, const std::string& sceneFile) {
   scene.mesh = r.string(*mesh, "/mesh");
   if (scene.mesh.empty()) r.fail("/mesh", "must not be empty");
   scene.mesh = resolveMesh(scene.mesh, sceneFile);
+  if (const Json* v = find(json, "up")) {
+    const std::string axis = r.string(*v, "/up");
+    try {
+      scene.up = parseUpAxis(axis);
+    } catch (const InvalidInputError& e) {
+      r.fail("/up", e.what());
+    }
+  }
   if (const Json* v = find(json, "properties")) readProperties(r, *v, scene.properties);
   readOverrides(r, json, scene);
   if (const Json* v = find(json, "constraints")) readConstraints(r, *v, scene);
@@ -841,6 +850,7 @@ OrderedJson sceneToJson(const SceneDescription& scene, const std::string& sceneF
   j["version"] = kSceneFormatVersion;
   if (!scene.description.empty()) j["description"] = scene.description;
   j["mesh"] = meshForFile(scene.mesh, sceneFile);
+  if (scene.up != UpAxis::Auto) j["up"] = upAxisName(scene.up);
 
   const UniformProperties& p = scene.properties;
   OrderedJson props = OrderedJson::object();

@@ -17,6 +17,7 @@
 #include <vector>
 
 #include "zsculpt/core/types.h"
+#include "zsculpt/io/mesh_io.h"
 #include "zsculpt/mesh/mesh.h"
 #include "zsculpt/physics/properties.h"
 
@@ -116,6 +117,8 @@ struct SceneDescription {
   /// A built-in name or a mesh file; a relative path in the file is resolved against the
   /// scene file's folder, so this is usable as it is (loadMeshSource).
   std::string mesh;
+  /// The mesh file's up axis, turned to +z as it loads (loadMeshSource); "up" in the file.
+  UpAxis up = UpAxis::Auto;
   UniformProperties properties;
   std::vector<PropertyOverride> overrides;  // applied in order after the uniform values
   std::vector<ConstraintSpec> constraints;
