@@ -402,6 +402,36 @@ TEST(Session, ADragMovesToAnotherVertexAsOneStep) {
   EXPECT_TRUE(session.unsaved());
 }
 
+TEST(Session, ASceneTravellingPinTravelsInTheWindowAndASaveKeepsItsWay) {
+  io::SceneDescription scene;
+  scene.mesh = "builtin:grid:6";
+  scene.properties.damping = 0.05;
+  scene.simulation.dtRatio = 0.5;
+  io::ConstraintSpec travel;
+  travel.vertex = 0;
+  travel.target = Vec3(0, 0, 2);
+  travel.start = 0.0;
+  travel.end = 2.0;
+  scene.constraints.push_back(travel);
+  Session session(sessionSetupFromScene(scene));
+  for (int k = 0; k < 3; ++k) session.advance();
+  // On its way: the corner has risen, not jumped; a save keeps the target and the times,
+  // not where the pin is now.
+  const double z = session.state().position(0, 2);
+  EXPECT_GT(z, 0.0);
+  EXPECT_LT(z, 2.0);
+  const io::SceneDescription saved = session.currentScene();
+  ASSERT_EQ(saved.constraints.size(), 1u);
+  EXPECT_TRUE(saved.constraints[0] == travel);
+  while (session.state().time < 2.5) session.advance();
+  EXPECT_NEAR(session.state().position(0, 2), 2.0, 1e-9);
+  // Arrived: a pin at its target, like any other.
+  const io::SceneDescription after = session.currentScene();
+  ASSERT_EQ(after.constraints.size(), 1u);
+  EXPECT_FALSE(after.constraints[0].start.has_value());
+  EXPECT_TRUE(after.constraints[0].target->isApprox(Vec3(0, 0, 2), 1e-12));
+}
+
 TEST(Session, PinsAreUnsavedWork) {
   // currentScene() saves the pins in force, so the window must ask before it quits.
   Session session(gridSetup(6));

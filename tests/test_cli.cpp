@@ -142,6 +142,35 @@ TEST_F(Cli, UpTurnsAYUpFileToStandOnZ) {
   EXPECT_EQ(box(g).second, (std::vector<double>{2, 2, 0}));
 }
 
+TEST_F(Cli, APinTravelsToItsTargetAndAFarJumpIsWarnedOf) {
+  // The state after 3 s: the pinned corner at its target, reached by a travel (no warning),
+  // or by a jump of 5 edge lengths (warned of, with the travel that avoids it).
+  const std::string common = "simulate builtin:grid:6 --pin 35 --damping 0.05 --time 3 --json";
+  const Result travel = run(common + " --pin 0:0,0,2:0:2 --state-out " + path("travel.csv"));
+  ASSERT_EQ(travel.status, 0) << travel.err;
+  EXPECT_EQ(travel.err.find("warning"), std::string::npos) << travel.err;
+  std::ifstream in(path("travel.csv"));
+  std::string header, first;
+  std::getline(in, header);
+  std::getline(in, first);
+  double x = 1, y = 1, z = 0;
+  ASSERT_EQ(std::sscanf(first.c_str(), "%lf,%lf,%lf", &x, &y, &z), 3) << first;
+  EXPECT_NEAR(x, 0.0, 1e-9);
+  EXPECT_NEAR(y, 0.0, 1e-9);
+  EXPECT_NEAR(z, 2.0, 1e-9);
+  const Result jump = run(common + " --pin 0:0,0,5");
+  ASSERT_EQ(jump.status, 0) << jump.err;
+  EXPECT_NE(jump.err.find("warning: --pin 0:0,0,5: the target is 5 from the vertex (5 of its "
+                          "edge lengths), reached in one cycle, which jerks the model; --pin "
+                          "0:0,0,5:0:1 moves it there over the first second"),
+            std::string::npos)
+      << jump.err;
+  expectOneLineError(run(common + " --pin 0:0,0,2:2:1"), 2,
+                     "--pin 0:0,0,2:2:1: T1 must be after T0");
+  expectOneLineError(run(common + " --pin 0:0,0"), 2,
+                     "--pin 0:0,0: expected I, I:X,Y,Z or I:X,Y,Z:T0:T1");
+}
+
 TEST_F(Cli, SimulateJsonSummaryAndFiles) {
   const Result r =
       run("simulate builtin:torus --mass 0.1 --perturb 0.05 --seed 3 --steps 200 "

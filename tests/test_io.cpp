@@ -1294,9 +1294,14 @@ TEST_F(SceneFile, SaveAndLoadRoundTrip) {
   scene.overrides.push_back({Property::Stiffness, true, {}, all});
   scene.overrides.push_back({Property::RestLength, false, {0, 39}, {0.5, 1.5}});
   scene.overrides.push_back({Property::RestAngle, false, {7}, {1.0}});
-  scene.constraints.push_back({ConstraintType::Position, 0, Vec3(0, 0, 1), std::nullopt});
-  scene.constraints.push_back({ConstraintType::Position, 4, std::nullopt, std::nullopt});
-  scene.constraints.push_back({ConstraintType::Normal, 24, std::nullopt, Vec3(0, 1, 0)});
+  scene.constraints.push_back(
+      {ConstraintType::Position, 0, Vec3(0, 0, 1), std::nullopt, std::nullopt, std::nullopt});
+  scene.constraints.push_back(
+      {ConstraintType::Position, 4, std::nullopt, std::nullopt, std::nullopt, std::nullopt});
+  scene.constraints.push_back(
+      {ConstraintType::Normal, 24, std::nullopt, Vec3(0, 1, 0), std::nullopt, std::nullopt});
+  scene.constraints.push_back({ConstraintType::Position, 20, Vec3(0, 0, 2), std::nullopt, 0.5,
+                               1.75});  // a pin travelling to its target
   scene.forces.push_back({12, Vec3(1, 2, 3), 0.25, 0.75});
   scene.forces.push_back({13, Vec3(0, 0, -1), 0.0, std::numeric_limits<double>::infinity()});
   scene.torques.push_back({6, Vec3(0.5, 0, 0), 1.0, 2.0});
@@ -1356,6 +1361,38 @@ TEST_F(SceneFile, UpTurnsTheMeshAndABadAxisIsNamed) {
     ADD_FAILURE() << "parsed";
   } catch (const InvalidInputError& e) {
     EXPECT_STREQ(e.what(), "s.json: /up: 'sideways' is not an axis (auto, x, -x, y, -y, z or -z)");
+  }
+}
+
+TEST_F(SceneFile, APinsTravelNeedsATargetAndBothTimes) {
+  const SceneDescription ok = parseScene(
+      R"({"mesh": "builtin:grid:3", "constraints": [{"type": "position", "vertex": 0,
+          "target": [0, 0, 2], "start": 0.5, "end": 2}]})",
+      "s.json");
+  ASSERT_EQ(ok.constraints.size(), 1u);
+  EXPECT_EQ(ok.constraints[0].start, 0.5);
+  EXPECT_EQ(ok.constraints[0].end, 2.0);
+  const std::pair<const char*, const char*> bad[] = {
+      {R"({"vertex": 0, "target": [0, 0, 2], "start": 1})",
+       "s.json: /constraints/0: a pin's travel needs both \"start\" and \"end\""},
+      {R"({"vertex": 0, "start": 0, "end": 1})",
+       "s.json: /constraints/0: a pin with \"start\" and \"end\" needs a \"target\""},
+      {R"({"vertex": 0, "target": [0, 0, 2], "start": 2, "end": 1})",
+       "s.json: /constraints/0/end: must be after start (2), got 1"},
+      {R"({"vertex": 0, "target": [0, 0, 2], "start": -1, "end": 1})",
+       "s.json: /constraints/0/start:"},
+      {R"({"type": "normal", "vertex": 0, "start": 0, "end": 1})",
+       "s.json: /constraints/0/end: unknown key (valid here: type, vertex, normal)"}};
+  for (const auto& [constraint, message] : bad) {
+    std::string c = constraint;
+    if (c.find("\"type\"") == std::string::npos) c.insert(1, R"("type": "position", )");
+    const std::string text = R"({"mesh": "builtin:grid:3", "constraints": [)" + c + "]}";
+    try {
+      (void)parseScene(text, "s.json");
+      ADD_FAILURE() << "parsed " << text;
+    } catch (const InvalidInputError& e) {
+      EXPECT_EQ(std::string(e.what()).rfind(message, 0), 0u) << e.what();
+    }
   }
 }
 

@@ -153,7 +153,9 @@ void Session::addSceneConstraints() {
   for (const io::ConstraintSpec& c : setup_.scene.constraints) {
     if (c.vertex < 0 || c.vertex >= n)
       throw InvalidInputError("constraint: " + vertexText(c.vertex) + " is out of range");
-    if (c.type == io::ConstraintType::Position)
+    if (c.type == io::ConstraintType::Position && c.target && c.start && c.end)
+      sim_->addPositionConstraint(c.vertex, *c.target, PinTravel{*c.start, *c.end});
+    else if (c.type == io::ConstraintType::Position)
       sim_->addPositionConstraint(c.vertex, c.target);
     else
       sim_->addNormalConstraint(c.vertex, c.normal);
@@ -592,10 +594,22 @@ io::SceneDescription Session::currentScene() const {
   scene.constraints.clear();
   for (const Constraint& c : sim_->constraints().constraints()) {
     if (isDragConstraint(c)) continue;
-    if (c.kind == ConstraintKind::Position)
-      scene.constraints.push_back({io::ConstraintType::Position, c.vertex, c.value, {}});
-    else
-      scene.constraints.push_back({io::ConstraintType::Normal, c.vertex, {}, c.value});
+    io::ConstraintSpec spec;
+    spec.vertex = c.vertex;
+    if (c.kind == ConstraintKind::Position) {
+      spec.type = io::ConstraintType::Position;
+      spec.target = c.value;
+      // A pin on its way keeps its way (its target and times), not where it is now.
+      if (const auto travel = sim_->pinTravel(c.id)) {
+        spec.target = travel->first;
+        spec.start = travel->second.start;
+        spec.end = travel->second.end;
+      }
+    } else {
+      spec.type = io::ConstraintType::Normal;
+      spec.normal = c.value;
+    }
+    scene.constraints.push_back(spec);
   }
   // Timed edits already applied live on in the painted arrays; keep the ones still to come
   // (by the schedule, not by the clock: after a Reset or a rollback the applied ones stay

@@ -88,9 +88,10 @@ app::SessionSetup makeSetup(const OpenOptions& o) {
     return static_cast<Index>(v);
   };
   for (long v : o.pins)
-    scene.constraints.push_back({io::ConstraintType::Position, vertex(v, "--pin"), {}, {}});
+    scene.constraints.push_back({io::ConstraintType::Position, vertex(v, "--pin"), {}, {}, {}, {}});
   for (long v : o.normalPins)
-    scene.constraints.push_back({io::ConstraintType::Normal, vertex(v, "--pin-normal"), {}, {}});
+    scene.constraints.push_back(
+        {io::ConstraintType::Normal, vertex(v, "--pin-normal"), {}, {}, {}, {}});
   io::validateScene(scene, loaded.model.mesh);
 
   app::SessionSetup setup;

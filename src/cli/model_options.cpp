@@ -110,7 +110,9 @@ void RunOptions::addTo(CLI::App* app) {
   app->add_option("--force", forces, "I:FX,FY,FZ[:T0:T1] force at vertex I (repeatable)");
   app->add_option("--torque", torques, "I:TX,TY,TZ[:T0:T1] torque at vertex I (repeatable)");
   app->add_option("--pin", pins,
-                  "I[:X,Y,Z] hold vertex I at X,Y,Z (default: where it starts; repeatable)");
+                  "I[:X,Y,Z[:T0:T1]] hold vertex I at X,Y,Z (default: where it starts); with "
+                  "T0:T1, hold it where it is until T0 s and move it there by T1 s, eased "
+                  "(repeatable)");
   app->add_option("--pin-normal", pinNormals,
                   "I[:NX,NY,NZ] hold the normal at vertex I (default: its starting normal; "
                   "repeatable)");
@@ -232,7 +234,8 @@ VertexVector parseVertexVector(const std::string& text, const std::string& flag)
   std::string part;
   while (std::getline(in, part, ',')) xyz.push_back(part);
   if (xyz.size() != 3 || text.back() == ',')
-    throw InvalidInputError(what + ": expected I or I:X,Y,Z");
+    throw InvalidInputError(what + (flag == "--pin" ? ": expected I, I:X,Y,Z or I:X,Y,Z:T0:T1"
+                                                    : ": expected I or I:X,Y,Z"));
   Vec3 value;
   for (int c = 0; c < 3; ++c) value[c] = parseNumber(xyz[static_cast<size_t>(c)], what);
   out.value = value;
@@ -390,14 +393,41 @@ void RunOptions::prepare(const LoadedModel& loaded, Simulation& sim) const {
   for (const std::string& f : forces) addLoad(f, "--force", false);
   for (const std::string& t : torques) addLoad(t, "--torque", true);
   // Constraints (section 6): the scene's, then the flags'. Errors name where they came from.
+  // A target far from its vertex without a travel is reached in one cycle: said, with the
+  // way to move it there over time.
+  auto warnIfFar = [&](const std::string& what, Index vertex, const Vec3& target,
+                       const std::string& remedy) {
+    const Mesh& mesh = sim.model().mesh;
+    if (vertex < 0 || vertex >= mesh.numVertices() || mesh.vertexEdges(vertex).empty()) return;
+    double edges = 0.0;
+    for (Index e : mesh.vertexEdges(vertex)) {
+      const auto [a, b] = mesh.edge(e);
+      edges += (sim.state().position.row(a) - sim.state().position.row(b)).norm();
+    }
+    const double edge = edges / static_cast<double>(mesh.vertexEdges(vertex).size());
+    const double distance = (target - sim.state().position.row(vertex).transpose()).norm();
+    if (!(distance > edge)) return;
+    std::ostringstream msg;
+    msg.precision(3);
+    msg << what << ": the target is " << distance << " from the vertex (" << distance / edge
+        << " of its edge lengths), reached in one cycle, which jerks the model; " << remedy;
+    warn(msg.str());
+  };
   if (loaded.scene)
     for (size_t k = 0; k < loaded.scene->constraints.size(); ++k) {
       const io::ConstraintSpec& c = loaded.scene->constraints[k];
+      const std::string where = loaded.source + ": /constraints/" + std::to_string(k);
       try {
-        if (c.type == io::ConstraintType::Position)
+        if (c.type == io::ConstraintType::Position && c.target && c.start && c.end) {
+          sim.addPositionConstraint(c.vertex, *c.target, PinTravel{*c.start, *c.end});
+        } else if (c.type == io::ConstraintType::Position) {
+          if (c.target)
+            warnIfFar(where, c.vertex, *c.target,
+                      "give it \"start\" and \"end\" to move it there over time");
           sim.addPositionConstraint(c.vertex, c.target);
-        else
+        } else {
           sim.addNormalConstraint(c.vertex, c.normal);
+        }
       } catch (const InvalidInputError& e) {
         throw InvalidInputError(loaded.source + ": /constraints/" + std::to_string(k) + ": " +
                                 e.what());
@@ -406,7 +436,23 @@ void RunOptions::prepare(const LoadedModel& loaded, Simulation& sim) const {
   auto constrain = [&](const std::vector<std::string>& texts, const std::string& flag,
                        bool position) {
     for (const std::string& text : texts) {
+      // --pin I:X,Y,Z:T0:T1: a travel, written as a timed load is.
+      if (position && std::count(text.begin(), text.end(), ':') == 3) {
+        const TimedLoad travel = parseTimedLoad(text, flag);
+        try {
+          sim.addPositionConstraint(travel.vertex, travel.value,
+                                    PinTravel{travel.start, travel.end});
+        } catch (const InvalidInputError& e) {
+          throw InvalidInputError(flag + " " + text + ": " + e.what());
+        }
+        continue;
+      }
       const VertexVector v = parseVertexVector(text, flag);
+      if (position && v.value) {
+        std::ostringstream remedy;
+        remedy << flag << " " << text << ":0:1 moves it there over the first second";
+        warnIfFar(flag + " " + text, v.vertex, *v.value, remedy.str());
+      }
       try {
         if (position)
           sim.addPositionConstraint(v.vertex, v.value);

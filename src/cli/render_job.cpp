@@ -185,7 +185,7 @@ RenderJobResult runRenderJob(const RenderJobOptions& o) {
                     [&](const Constraint& c) {
                       // (A normal pin may ask for another normal: counted as acting, never warned
                       // of.)
-                      return c.kind == ConstraintKind::Normal ||
+                      return c.kind == ConstraintKind::Normal || sim.pinTravel(c.id) ||
                              c.value != sim.state().position.row(c.vertex).transpose();
                     });
     nothingActs = atRest && sim.forces().empty() && sim.torques().empty() &&

@@ -432,13 +432,26 @@ void readConstraints(const SceneReader& r, const Json& j, SceneDescription& scen
     ConstraintSpec spec;
     spec.type = r.name(*type, at + "/type", kConstraintTypes);
     if (spec.type == ConstraintType::Position)
-      r.object(c, at, {"type", "vertex", "target"});
+      r.object(c, at, {"type", "vertex", "target", "start", "end"});
     else
       r.object(c, at, {"type", "vertex", "normal"});
     const Json* vertex = find(c, "vertex");
     if (vertex == nullptr) r.fail(at, "needs \"vertex\"");
     spec.vertex = r.index(*vertex, at + "/vertex", "a vertex index");
     if (const Json* t = find(c, "target")) spec.target = r.vec3(*t, at + "/target");
+    const Json* start = find(c, "start");
+    const Json* end = find(c, "end");
+    if (start != nullptr || end != nullptr) {
+      // A travel: both times, and a target to travel to.
+      if (start == nullptr || end == nullptr)
+        r.fail(at, "a pin's travel needs both \"start\" and \"end\"");
+      if (!spec.target) r.fail(at, "a pin with \"start\" and \"end\" needs a \"target\"");
+      spec.start = r.nonNegative(*start, at + "/start");
+      spec.end = r.number(*end, at + "/end");
+      if (!(*spec.end > *spec.start && std::isfinite(*spec.end)))
+        r.fail(at + "/end", "must be after start (" + formatNumber(*spec.start) + "), got " +
+                                formatNumber(*spec.end));
+    }
     if (const Json* n = find(c, "normal")) {
       spec.normal = r.vec3(*n, at + "/normal");
       if (spec.normal->norm() == 0.0) r.fail(at + "/normal", "the normal must not be zero");
@@ -895,6 +908,10 @@ OrderedJson sceneToJson(const SceneDescription& scene, const std::string& sceneF
       item["type"] = constraintTypeName(c.type);
       item["vertex"] = c.vertex;
       if (c.type == ConstraintType::Position && c.target) item["target"] = vecJson(*c.target);
+      if (c.type == ConstraintType::Position && c.target && c.start && c.end) {
+        item["start"] = *c.start;
+        item["end"] = *c.end;
+      }
       if (c.type == ConstraintType::Normal && c.normal) item["normal"] = vecJson(*c.normal);
       list.push_back(item);
     }

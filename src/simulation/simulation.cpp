@@ -6,6 +6,7 @@
 #include <cstdint>
 #include <iterator>
 #include <optional>
+#include <sstream>
 #include <string>
 
 #include "zsculpt/core/errors.h"
@@ -276,6 +277,47 @@ Index Simulation::addPositionConstraint(Index vertex, std::optional<Vec3> target
   return constraints_.addPosition(model_.mesh, vertex, where);
 }
 
+Index Simulation::addPositionConstraint(Index vertex, const Vec3& target, const PinTravel& travel) {
+  if (!(std::isfinite(travel.start) && std::isfinite(travel.end) && travel.start >= 0.0 &&
+        travel.end > travel.start)) {
+    std::ostringstream msg;
+    msg.precision(6);
+    msg << "a pin's travel must end after it starts, at finite times >= 0 (got " << travel.start
+        << " to " << travel.end << " s)";
+    throw InvalidInputError(msg.str());
+  }
+  if (!target.allFinite()) throw InvalidInputError("the pin's target is not finite");
+  const Index id = addPositionConstraint(vertex, std::nullopt);
+  std::erase_if(travelling_, [&](const Travelling& t) { return t.id == id; });
+  travelling_.push_back({id, target, travel, std::nullopt});
+  return id;
+}
+
+std::optional<std::pair<Vec3, PinTravel>> Simulation::pinTravel(Index id) const {
+  for (const Travelling& t : travelling_)
+    if (t.id == id) return std::make_pair(t.to, t.travel);
+  return std::nullopt;
+}
+
+void Simulation::moveTravellingPins() {
+  const double end = state_.time + cyclePeriod_;
+  const std::span<const Constraint> items = constraints_.constraints();
+  for (Travelling& t : travelling_) {
+    const auto held =
+        std::find_if(items.begin(), items.end(), [&](const Constraint& c) { return c.id == t.id; });
+    if (held == items.end()) {  // gone: dropped below
+      t.travel.end = t.travel.start = -1.0;
+      continue;
+    }
+    if (!(end > t.travel.start)) continue;
+    if (!t.from) t.from = held->value;
+    const double share = t.travel.shareAt(end);
+    constraints_.setTarget(t.id, share >= 1.0 ? t.to : Vec3(*t.from + share * (t.to - *t.from)));
+  }
+  // Arrived (or gone): the pin holds its target from now on.
+  std::erase_if(travelling_, [&](const Travelling& t) { return t.travel.shareAt(end) >= 1.0; });
+}
+
 Index Simulation::addNormalConstraint(Index vertex, std::optional<Vec3> normal) {
   // Without a normal: the current one (addNormal reports where there is none).
   const Vec3 direction =
@@ -298,10 +340,12 @@ Index Simulation::addNormalConstraint(Index vertex, std::optional<Vec3> normal) 
 
 void Simulation::setConstraintTarget(Index id, const Vec3& target) {
   constraints_.setTarget(id, target);
+  std::erase_if(travelling_, [&](const Travelling& t) { return t.id == id; });
 }
 
 void Simulation::moveConstraint(Index id, Index vertex, const Vec3& target) {
   constraints_.movePosition(model_.mesh, id, vertex, target);
+  std::erase_if(travelling_, [&](const Travelling& t) { return t.id == id; });
 }
 
 void Simulation::setConstraintNormal(Index id, const Vec3& normal) {
@@ -310,10 +354,12 @@ void Simulation::setConstraintNormal(Index id, const Vec3& normal) {
 
 void Simulation::removeConstraint(Index id) {
   constraints_.remove(id);
+  std::erase_if(travelling_, [&](const Travelling& t) { return t.id == id; });
 }
 
 void Simulation::clearConstraints() {
   constraints_.clear();
+  travelling_.clear();
   constraintForce_.setZero();
   constraintForceZero_ = true;
 }
@@ -417,6 +463,7 @@ void Simulation::rewindState(const ImpulseLedger& ledgerBefore) {
 void Simulation::step() {
   energyAtState_ = false;
   retakes_ = 0;
+  if (!travelling_.empty()) moveTravellingPins();
   chooseSubsteps();
   endRateValid_ = false;
   copyPoints(state_.position, lastGood_.position, stepper_->threads());

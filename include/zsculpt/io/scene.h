@@ -43,6 +43,9 @@ struct ConstraintSpec {
   Index vertex = 0;
   std::optional<Vec3> target;  // position: where to hold the vertex (absent: where it is)
   std::optional<Vec3> normal;  // normal: the direction to hold (absent: the normal as loaded)
+  /// position with a target: travel there over [start, end] seconds (Simulation's
+  /// PinTravel) rather than at once; absent: the target holds from the start.
+  std::optional<double> start, end;
   bool operator==(const ConstraintSpec&) const = default;
 };
 

@@ -46,6 +46,21 @@ struct TimedLoad {
   }
 };
 
+/// A pin's way to its target: it holds its vertex where it is until `start`, then moves
+/// there by `end` (seconds), eased in and out (smoothstep: no jump in speed at either end),
+/// rather than in one cycle, which jerks the model.
+struct PinTravel {
+  double start = 0.0;
+  double end = 0.0;
+  /// The share of the way covered at time t: 0 until start, 1 from end.
+  [[nodiscard]] double shareAt(double t) const {
+    if (!(t > start)) return 0.0;
+    if (!(t < end)) return 1.0;
+    const double s = (t - start) / (end - start);
+    return s * s * (3.0 - 2.0 * s);
+  }
+};
+
 /// How the deformation velocities follow the rigid body's rotation over a cycle.
 enum class RigidFrame {
   /// Turned with the body: the elastic part is stepped in the rigid body's frame (default;
@@ -136,6 +151,14 @@ class Simulation {
   /// it is; a normal constraint without a normal holds the current best-plane normal.
   /// Errors (InvalidInputError): see constraints.h.
   Index addPositionConstraint(Index vertex, std::optional<Vec3> target = std::nullopt);
+  /// A pin that travels to `target` over `travel` (PinTravel), from where the vertex is when
+  /// it sets off. Throws InvalidInputError as addPositionConstraint does, or for a travel
+  /// whose end is not after its start (or is not finite). The drag tool taking the pin
+  /// (setConstraintTarget, moveConstraint) or its removal ends the travel.
+  Index addPositionConstraint(Index vertex, const Vec3& target, const PinTravel& travel);
+  /// The target and travel of position constraint `id` while it is on its way (not yet
+  /// arrived); nullopt otherwise.
+  [[nodiscard]] std::optional<std::pair<Vec3, PinTravel>> pinTravel(Index id) const;
   Index addNormalConstraint(Index vertex, std::optional<Vec3> normal = std::nullopt);
   /// The drag tool: move a position constraint's target (takes effect at the next cycle).
   void setConstraintTarget(Index id, const Vec3& target);
@@ -248,7 +271,15 @@ class Simulation {
   bool endRateValid_ = false;
   double loadWork_ = 0.0;
   std::vector<Vec3> targetStart_, targetEnd_;  // position targets over a split cycle
-  Points subStart_;                            // positions at a split cycle's step's start
+  struct Travelling {
+    Index id = 0;
+    Vec3 to = Vec3::Zero();
+    PinTravel travel;
+    std::optional<Vec3> from;  // where the pin was when it set off
+  };
+  std::vector<Travelling> travelling_;
+  void moveTravellingPins();  // their targets at the end of the coming cycle
+  Points subStart_;           // positions at a split cycle's step's start
   std::vector<TimedLoad> forces_;
   std::vector<TimedLoad> torques_;
   Points external_;
