@@ -778,6 +778,24 @@ TEST_F(Cli, InfoSaysWhichPeriodTheStepRatioScales) {
       << r.out;
 }
 
+TEST_F(Cli, RenderDrawsTheClassicSurfaceWhenAsked) {
+  // render had no --classic, which subdivide has (a review). The classic surface lies inside
+  // the lattice's boundary: it covers less of the frame than the interpolating one.
+  const std::string common =
+      "render builtin:lattice:3 --levels 3 --frames 1 --steps 0 --size 320x200 --no-progress "
+      "--json --out ";
+  const Result plain = run(common + path("plain"));
+  const Result classic = run(common + path("classic") + " --classic");
+  ASSERT_EQ(plain.status, 0) << plain.err;
+  ASSERT_EQ(classic.status, 0) << classic.err;
+  const auto a =
+      zsculpt::render::readPng(nlohmann::json::parse(plain.out)["frames"][0].get<std::string>());
+  const auto b =
+      zsculpt::render::readPng(nlohmann::json::parse(classic.out)["frames"][0].get<std::string>());
+  EXPECT_GT(zsculpt::render::meanAbsoluteDifference(a, b), 1.0 / 255.0);
+  EXPECT_LT(coverage(b), coverage(a));
+}
+
 TEST_F(Cli, RenderOfAStillModelGivesIdenticalFrames) {
   const Result r = run("render builtin:dodecahedron --out " + path("out") +
                        " --frames 2 --every 25 --size 240x180 --property stiffness --json");
@@ -803,7 +821,16 @@ TEST_F(Cli, RenderRefusesBadInputBeforeAnyWork) {
                      "--size");
   expectOneLineError(run("render builtin:torus --out " + path("c") + " --property colour"), 2,
                      "--property: unknown property 'colour'");
-  expectOneLineError(run("render builtin:torus --out " + path("d") + " --levels 9"), 2, "--levels");
+  // One range and one refusal for the levels of render and subdivide (a review found 0 to 6
+  // and 0 to 8, in two wordings): the range, then the estimate, before any work.
+  expectOneLineError(run("render builtin:torus --out " + path("d") + " --levels 9"), 2,
+                     "--levels: 9 is outside [0, 8]");
+  expectOneLineError(run("subdivide builtin:torus --levels 9 --out " + path("d/t.obj")), 2,
+                     "--levels: 9 is outside [0, 8]");
+  expectOneLineError(run("render builtin:grid --out " + path("d") + " --levels 8"), 2,
+                     "--levels: 8 levels of this 324-vertex mesh would make about 18.9 million "
+                     "vertices (about 29 GB), more than the 4194304 allowed; at most 6 levels "
+                     "fit");
   expectOneLineError(run("render builtin:torus --out /proc/zsculpt/frames"), 2, "/proc/zsculpt");
   expectOneLineError(run("render " + path("missing.obj") + " --out " + path("e")), 2,
                      "missing.obj");

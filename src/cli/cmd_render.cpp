@@ -31,8 +31,10 @@ void addRenderCommand(CLI::App& root, CommandList& commands) {
                   "colour the surface by a property: mass, damping, stiffness, angular_stiffness, "
                   "rigidity, rest_length, rest_angle (default: none)");
   app->add_option("--levels", o->levels,
-                  "Doo-Sabin levels of the drawn surface, 0 to 6 (default: 2 to 5, by the "
-                  "image size)");
+                  "Doo-Sabin levels of the drawn surface, 0 to 8 as far as they fit, as for "
+                  "subdivide (default: 2 to 5, by the image size)");
+  app->add_flag("--classic", o->classic,
+                "draw classic Doo-Sabin (CGAL's masks), which does not interpolate the mesh");
   app->add_flag("!--no-progress", o->progress, "no progress bar on standard error");
   commands.push_back({app, [o]() {
                         const RenderJobResult r = runRenderJob(*o);

@@ -11,6 +11,7 @@
 
 #include "commands.h"
 #include "console.h"
+#include "levels.h"
 #include "model_options.h"
 #include "zsculpt/app/recording.h"
 #include "zsculpt/core/errors.h"
@@ -45,7 +46,7 @@ int runReplay(const ReplayOptions& o) {
   options.frames = !o.noFrames;
   render::parseImageSize(o.size, options.width, options.height, "--size");
   if (!o.property.empty()) options.property = propertyOption(o.property);
-  if (o.levels < 0 || o.levels > 6) throw InvalidInputError("--levels: must be between 0 and 6");
+  checkLevelsRange(o.levels);
   options.levels = o.levels;
   const app::Recording recording = app::readRecording(o.recording);
   if (!recording.setup)

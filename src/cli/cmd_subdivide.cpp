@@ -6,6 +6,7 @@
 #include <utility>
 
 #include "commands.h"
+#include "levels.h"
 #include "model_options.h"
 #include "zsculpt/core/errors.h"
 #include "zsculpt/io/mesh_io.h"
@@ -24,8 +25,7 @@ struct SubdivideOptions {
 };
 
 int runSubdivide(const SubdivideOptions& options) {
-  if (options.levels < 0 || options.levels > 8)
-    throw InvalidInputError("--levels: " + std::to_string(options.levels) + " is outside [0, 8]");
+  checkLevelsRange(options.levels);
   io::checkMeshOutput(options.out);  // before the work, not after it
   const LoadedModel loaded = options.model.load();
   SubdivisionOptions sub;
@@ -33,24 +33,7 @@ int runSubdivide(const SubdivideOptions& options) {
   sub.interpolate = !options.classic;
   sub.mass = &loaded.model.properties.mass;
   const Mesh& control = loaded.model.mesh;
-  // The stencil refuses levels the memory cannot take; said of the flag that asked for them.
-  // The estimate (subdivision.h) refuses what would not fit before any work; memory that
-  // runs out anyway (a smaller machine) is said of the flag.
-  const SubdivisionStencil stencil = [&] {
-    try {
-      return SubdivisionStencil(control, sub);
-    } catch (const InvalidInputError& e) {
-      const std::string what = e.what();
-      throw InvalidInputError(what.rfind("levels: ", 0) == 0 ? "--" + what : what);
-    } catch (const std::bad_alloc&) {
-      throw InvalidInputError("--levels: out of memory building " + std::to_string(options.levels) +
-                              " levels of this " + std::to_string(control.numVertices()) +
-                              "-vertex mesh (about " +
-                              std::to_string(static_cast<long long>(
-                                  estimatedRefinedVertices(control, options.levels))) +
-                              " vertices); try fewer levels");
-    }
-  }();
+  const SubdivisionStencil stencil = stencilForLevels(control, sub);
   Points refined(stencil.numRefinedVertices(), 3);
   stencil.apply(control.positions(), refined);
   const double error = maxInterpolationError(stencil, control.positions(), refined);

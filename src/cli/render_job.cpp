@@ -12,6 +12,7 @@
 #include <sstream>
 
 #include "console.h"
+#include "levels.h"
 #include "runaway_guard.h"
 #include "timed_edits.h"
 #include "zsculpt/app/view.h"
@@ -140,8 +141,7 @@ RenderJobResult runRenderJob(const RenderJobOptions& o) {
   render::parseImageSize(o.size, result.width, result.height, "--size");
   std::optional<Property> property;
   if (!o.property.empty() && o.property != "none") property = propertyOption(o.property);
-  if (o.levels && (*o.levels < 0 || *o.levels > 6))
-    throw InvalidInputError("--levels: must be between 0 and 6");
+  if (o.levels) checkLevelsRange(*o.levels);
   if (o.out.empty()) throw InvalidInputError("--out: an output folder is required");
   io::checkCreatableDirectory(o.out);  // made by the first frame written
   for (const std::string* path : {&o.run.csv, &o.run.stateOut})
@@ -167,7 +167,8 @@ RenderJobResult runRenderJob(const RenderJobOptions& o) {
   if (result.levels > 0) {
     SubdivisionOptions subdivision;
     subdivision.levels = result.levels;
-    stencil = std::make_unique<SubdivisionStencil>(mesh, subdivision);
+    subdivision.interpolate = !o.classic;
+    stencil = std::make_unique<SubdivisionStencil>(stencilForLevels(mesh, subdivision));
   }
 
   Simulation sim(loaded.model, resolved.settings);

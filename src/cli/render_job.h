@@ -21,6 +21,7 @@ struct RenderJobOptions {
   std::string property;           ///< colour the surface by this property ("" or "none": clay)
   std::optional<int>
       levels;            ///< Doo-Sabin levels of the drawn surface (default: app::levelsForImage)
+  bool classic = false;  ///< classic Doo-Sabin for the drawn surface (no interpolation)
   bool progress = true;  ///< a progress bar on standard error when it is a terminal
 };
 
