@@ -831,7 +831,12 @@ TEST_F(Cli, RenderRefusesBadInputBeforeAnyWork) {
                      "--levels: 8 levels of this 324-vertex mesh would make about 18.9 million "
                      "vertices (about 29 GB), more than the 4194304 allowed; at most 6 levels "
                      "fit");
-  expectOneLineError(run("render builtin:torus --out /proc/zsculpt/frames"), 2, "/proc/zsculpt");
+  // The folder the user named, not a frame in it they never named (a review).
+  expectOneLineError(run("render builtin:torus --out /proc/zsculpt/frames"), 2,
+                     "zsculpt: error: /proc/zsculpt/frames: cannot create the folder");
+  // CLI11's count message, in the words of the others.
+  expectOneLineError(run("simulate builtin:torus --steps 1 --gravity 0,0"), 2,
+                     "--gravity: expected 3 comma-separated values, got 2");
   expectOneLineError(run("render " + path("missing.obj") + " --out " + path("e")), 2,
                      "missing.obj");
   expectOneLineError(run("render builtin:torus --out " + path("f") + " --frames 0"), 2, "--frames");

@@ -5,6 +5,7 @@
 #include <charconv>
 #include <cstring>
 #include <iostream>
+#include <regex>
 #include <string>
 
 #include "commands.h"
@@ -79,8 +80,12 @@ int run(int argc, char** argv) {
   } catch (const CLI::Success& e) {
     return app.exit(e);
   } catch (const CLI::ParseError& e) {
-    // One line, as cli.md asks: `zsculpt: error: <argument>: <reason>`.
-    std::cerr << "zsculpt: error: " << oneLine(e.what()) << "\n";
+    // One line, as cli.md asks: `zsculpt: error: <argument>: <reason>`, in the words of the
+    // other messages (CLI11's "At least 3 required but received 2" for `--gravity 0,0`).
+    static const std::regex count("At least ([0-9]+) required but received ([0-9]+)");
+    const std::string text =
+        std::regex_replace(e.what(), count, "expected $1 comma-separated values, got $2");
+    std::cerr << "zsculpt: error: " << oneLine(text) << "\n";
     return 2;
   }
   // What went to standard output must have arrived: a full disk or a closed pipe under

@@ -303,6 +303,9 @@ RenderJobResult runRenderJob(const RenderJobOptions& o) {
     char name[32];
     std::snprintf(name, sizeof name, "frame_%0*zu.png", digits, result.frames.size());
     const std::string path = (fs::path(o.out) / name).string();
+    // The folder the user named is made here, at the first write (checked, not made, before
+    // the run), so that its error names it rather than a frame in it.
+    if (result.frames.empty()) io::ensureWritableDirectory(o.out);
     fillFrame();
     if (backAway) render::keepSceneInView(frame, aspect, 1.25, viewPoints, viewRefined);
     renderer.renderPng(frame, result.width, result.height, path);
