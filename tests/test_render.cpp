@@ -576,6 +576,48 @@ TEST(Offscreen, ReferenceDodecahedronWithWireframeAndGlyphs) {
   expectMatchesReference(offscreen().render(frame, 320, 240), "dodecahedron_wireframe");
 }
 
+TEST(Offscreen, NormalPinArrowsAreFramedAndLeaveAPinnedVertexItsRedCube) {
+  // Figure 9 (a review): a normal pin's arrow ran off the panel, since framing counted the
+  // force arrows only, and on a vertex also held in place a blue cube drawn into the red one
+  // mottled both. The arrow now starts clear of the red cube and its tip is framed.
+  const Mesh mesh = makeDodecahedron();
+  Frame frame = frameFor(mesh, -60, 25);
+  frame.display.backgroundGradient = false;
+  frame.style.glyphScale = 4.0;  // long arrows, far outside the model
+  const Vec3 out = mesh.positions().row(0).transpose().normalized();
+  frame.pins = {0};
+  frame.normalPins = {{0, out}};
+  frameScene(frame, 320.0 / 240.0, 1.1);
+  const double glyph =
+      std::clamp(0.3 * mesh.meanEdgeLength(), 0.016 * mesh.boundingBox().diagonal(),
+                 0.05 * mesh.boundingBox().diagonal()) *
+      frame.style.glyphScale;
+  const Vec3 tip = mesh.positions().row(0).transpose() + (std::sqrt(3.0) * 0.5 + 4.0) * glyph * out;
+  Eigen::Vector2d pixel;
+  ASSERT_TRUE(frame.camera.project(tip, 320, 240, pixel));
+  EXPECT_GE(pixel.x(), 0.0);
+  EXPECT_LE(pixel.x(), 320.0);
+  EXPECT_GE(pixel.y(), 0.0);
+  EXPECT_LE(pixel.y(), 240.0);
+  // Blue (the arrow) is drawn; at the vertex, the cube is red with no blue mixed in.
+  const Image image = offscreen().render(frame, 320, 240);
+  auto blue = [](const std::uint8_t* p) { return p[2] > p[0] + 60 && p[2] > p[1] + 20; };
+  auto red = [](const std::uint8_t* p) { return p[0] > p[1] + 80 && p[0] > p[2] + 80; };
+  int blueAll = 0;
+  for (int y = 0; y < image.height; ++y)
+    for (int x = 0; x < image.width; ++x) blueAll += blue(image.pixel(x, y));
+  EXPECT_GT(blueAll, 100);
+  ASSERT_TRUE(frame.camera.project(mesh.positions().row(0).transpose(), 320, 240, pixel));
+  int redAt = 0, blueAt = 0;
+  for (int y = static_cast<int>(pixel.y()) - 2; y <= static_cast<int>(pixel.y()) + 2; ++y)
+    for (int x = static_cast<int>(pixel.x()) - 2; x <= static_cast<int>(pixel.x()) + 2; ++x) {
+      redAt += red(image.pixel(x, y));
+      blueAt += blue(image.pixel(x, y));
+    }
+  EXPECT_GT(redAt, 15);
+  EXPECT_EQ(blueAt, 0);
+}
+
 TEST(Offscreen, ReferenceTorusWithColourMap) {
   const Mesh mesh = makeTorus();
   Frame frame = frameFor(mesh, -50, 40, 320, 240, 1.3);

@@ -66,6 +66,21 @@ void basisFrom(const Vec3& d, Vec3& x, Vec3& y) {
   y = d.cross(x);
 }
 
+// The size of the pin cubes and arrow heads, from the control mesh's scale: a third of an
+// edge, within 1.6 % to 5 % of the bounding box's diagonal.
+double glyphSizeOf(const Mesh& mesh) {
+  const double diagonal = std::max(mesh.boundingBox().diagonal(), 1e-9);
+  const double edge = mesh.numEdges() > 0 ? mesh.meanEdgeLength() : 0.05 * diagonal;
+  return std::clamp(0.3 * edge, 0.016 * diagonal, 0.05 * diagonal);
+}
+
+// A normal pin's arrow: its length and, on a vertex also held in place, how far from the
+// vertex it starts (clear of the pin's cube, whose half-size is half the glyph size).
+constexpr double kNormalArrowLength = 4.0;  // glyph sizes
+double normalArrowOffset(double glyph, bool pinned) {
+  return pinned ? std::sqrt(3.0) * 0.5 * glyph : 0.0;
+}
+
 struct Overlay {
   GLuint texture = 0;
   int textureWidth = 0;
@@ -644,7 +659,7 @@ struct Renderer::Impl {
     const BoundingBox box = mesh.boundingBox();
     diagonal = std::max(box.diagonal(), 1e-9);
     const double edge = mesh.numEdges() > 0 ? mesh.meanEdgeLength() : 0.05 * diagonal;
-    glyphSize = std::clamp(0.3 * edge, 0.016 * diagonal, 0.05 * diagonal);
+    glyphSize = glyphSizeOf(mesh);
     pointRadius = std::clamp(0.055 * edge, 0.003 * diagonal, 0.02 * diagonal);
 
     keyMesh = frame.mesh;
@@ -862,8 +877,13 @@ struct Renderer::Impl {
       Vec3 y;
       basisFrom(n, x, y);
       const double h = 0.5 * g;
-      pushInstance(kCube, x * h, y * h, n * h, position(pin.vertex), style.normalPin);
-      pushArrow(position(pin.vertex), n, 4.0 * g, 0.9 * g, style.normalPin);
+      // A vertex held in place too keeps its red cube alone (two cubes in one place drew a
+      // mottled mix of both colours), and the arrow starts clear of it.
+      const bool pinned =
+          std::find(frame.pins.begin(), frame.pins.end(), pin.vertex) != frame.pins.end();
+      if (!pinned) pushInstance(kCube, x * h, y * h, n * h, position(pin.vertex), style.normalPin);
+      pushArrow(position(pin.vertex) + n * normalArrowOffset(g, pinned), n, kNormalArrowLength * g,
+                0.9 * g, style.normalPin);
     }
     // Arrow scale: the largest force (and torque) kArrowShare of the diagonal, unless fixed.
     auto scaleFor = [&](const std::vector<VertexVector>& vectors) {
@@ -1405,7 +1425,8 @@ void scenePoints(const Frame& frame, Points& all, Points& refinedPoints) {
   const double diagonal = frame.mesh->boundingBox().diagonal();
   Index tips = 0;
   if (frame.display.glyphs)
-    tips = 2 * static_cast<Index>(frame.forces.size() + frame.torques.size());
+    tips = 2 * static_cast<Index>(frame.forces.size() + frame.torques.size()) +
+           static_cast<Index>(frame.normalPins.size());
   all.resize(control.rows() + refined + tips, 3);
   all.topRows(control.rows()) = control;
   if (refined > 0) {
@@ -1430,6 +1451,17 @@ void scenePoints(const Frame& frame, Points& all, Points& refinedPoints) {
   if (frame.display.glyphs) {
     arrows(frame.forces);
     arrows(frame.torques);
+    // The normal pins' arrow tips (drawn along the pin's normal, a fixed glyph length).
+    const double glyph = glyphSizeOf(*frame.mesh) * frame.style.glyphScale;
+    for (const NormalPin& pin : frame.normalPins) {
+      if (pin.vertex < 0 || pin.vertex >= control.rows() || !(pin.normal.norm() > 0.0) ||
+          !pin.normal.allFinite())
+        continue;
+      const bool pinned =
+          std::find(frame.pins.begin(), frame.pins.end(), pin.vertex) != frame.pins.end();
+      const double reach = normalArrowOffset(glyph, pinned) + kNormalArrowLength * glyph;
+      all.row(next++) = control.row(pin.vertex) + reach * pin.normal.normalized().transpose();
+    }
   }
   // Arrows on vertices that do not exist or are not finite are not drawn: the rows kept are
   // the first `next` (conservativeResize only shrinks here, in place).
