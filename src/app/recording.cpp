@@ -81,6 +81,9 @@ SessionSetup setupFromHeader(const json& header, const std::string& path,
   SessionSetup setup;
   try {
     setup.scene = io::sceneFromJson(header.at("scene"), path);
+    // Recordings made before meshes were turned up (their scene has no "up", which
+    // sceneToJson now always writes) loaded every file as it was: so does their replay.
+    if (!header.at("scene").contains("up")) setup.scene.up = io::UpAxis::PlusZ;
   } catch (const InvalidInputError& e) {
     throw InvalidInputError(where + ": scene: " + e.what());
   }
@@ -107,11 +110,6 @@ SessionSetup setupFromHeader(const json& header, const std::string& path,
              ? "; this version winds its faces consistently on import (" +
                    std::to_string(loadReport.facesReversed) +
                    " reversed), which a recording made before that cannot replay"
-             : "") +
-        (loadReport.up != io::UpAxis::PlusZ
-             ? "; the file's up axis " + io::upAxisName(loadReport.up) +
-                   " is turned to +z on import, which a recording made before that cannot "
-                   "replay"
              : ""));
   if (header.contains("initial_state")) {
     const json& s = header.at("initial_state");

@@ -69,7 +69,8 @@ int runInfo(const ModelOptions& options, bool json) {
               << " faces reversed to wind as their neighbours (a closed sheet outward)\n";
   if (loaded.report.up != io::UpAxis::PlusZ)
     std::cout << "  up axis " << io::upAxisName(loaded.report.up)
-              << " in the file, turned to +z (--up z keeps the file's coordinates)\n";
+              << " as read, turned to +z (--up z keeps the coordinates as read; assimp reads a "
+                 "Collada file Y-up whatever its <up_axis>)\n";
   if (loaded.report.nonOrientableComponents)
     std::cout << "  " << loaded.report.nonOrientableComponents
               << " non-orientable component(s): no winding agrees across every edge\n";
@@ -79,7 +80,8 @@ int runInfo(const ModelOptions& options, bool json) {
             << " .. " << p.angularStiffness.maxCoeff() << ", damping " << p.damping.minCoeff()
             << " .. " << p.damping.maxCoeff() << "\n"
             << "  critical sampling period T_max (equation 5, the bound --dt-ratio scales) " << tMax
-            << " s; the linear stability limit sqrt(12 / lambda_max) " << tTight << " s\n";
+            << " s; the default scheme's linear stability limit sqrt(12 / lambda_max) " << tTight
+            << " s\n";
   return 0;
 }
 

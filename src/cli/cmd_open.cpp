@@ -39,6 +39,9 @@ app::SessionSetup makeSetup(const OpenOptions& o) {
     scene = *loaded.scene;
   } else {
     scene.mesh = loaded.source;
+    // The axis the mesh was turned by (--up, or its format's), so that a recording replays
+    // and a saved scene reopens the mesh as the window showed it.
+    scene.up = loaded.report.up;
     // The uniform values the flags gave, so the recorded scene stays small.
     const PhysicalProperties& p = loaded.model.properties;
     if (p.mass.size() > 0) {

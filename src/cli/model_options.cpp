@@ -437,7 +437,10 @@ void RunOptions::prepare(const LoadedModel& loaded, Simulation& sim) const {
                        bool position) {
     for (const std::string& text : texts) {
       // --pin I:X,Y,Z:T0:T1: a travel, written as a timed load is.
-      if (position && std::count(text.begin(), text.end(), ':') == 3) {
+      const auto colons = std::count(text.begin(), text.end(), ':');
+      if (position && colons == 2)
+        throw InvalidInputError(flag + " " + text + ": expected I, I:X,Y,Z or I:X,Y,Z:T0:T1");
+      if (position && colons == 3) {
         const TimedLoad travel = parseTimedLoad(text, flag);
         try {
           sim.addPositionConstraint(travel.vertex, travel.value,

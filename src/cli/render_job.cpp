@@ -55,8 +55,10 @@ std::vector<long> frameSteps(const RenderJobOptions& o, RunOptions::Resolved& ru
         throw InvalidInputError("--every: " + std::to_string(k) + " would write more than " +
                                 std::to_string(kMaxFrames) + " frames");
     }
-    if (at.back() < steps)
-      warn("--every " + std::to_string(k) + " --frames " + std::to_string(at.size()) +
+    // --frames cut the frames short of the run's end (without it, the frames go on to the
+    // end, K steps apart).
+    if (o.frames && static_cast<long>(at.size()) == *o.frames && at.back() + k <= steps)
+      warn("--every " + std::to_string(k) + " --frames " + std::to_string(*o.frames) +
            ": frames at steps 0 to " + std::to_string(at.back()) + "; the run goes on to step " +
            std::to_string(steps) + " with no more frames");
     return at;
@@ -338,6 +340,7 @@ RenderJobResult runRenderJob(const RenderJobOptions& o) {
                     static_cast<long>(result.frames.size()), static_cast<long>(frameAt.size()));
   }
   progress.finish();
+  result.stepsTaken = result.diverged ? result.divergedAt - 1 : steps;
   sayNothingActs();
 
   result.diagnostics =
@@ -389,8 +392,10 @@ int reportRenderJob(const RenderJobOptions& o, const RenderJobResult& r,
     std::cout << "\ndiagnostics: " << r.diagnostics << "\nplot: " << r.plot << "\n";
     if (!r.stateOut.empty()) std::cout << "state: " << r.stateOut << "\n";
     // Simulated time first: "N steps ... in W s" read as W seconds simulated.
-    std::cout << "simulated " << static_cast<double>(r.steps) * r.period << " s in " << r.steps
-              << " steps of " << r.period << " s (" << r.period / r.tMax << " T_max); wall time "
+    std::cout << "simulated " << static_cast<double>(r.stepsTaken) * r.period << " s in "
+              << r.stepsTaken;
+    if (r.stepsTaken != r.steps) std::cout << " of " << r.steps;
+    std::cout << " steps of " << r.period << " s (" << r.period / r.tMax << " T_max); wall time "
               << r.wallSeconds << " s\n";
   }
   if (r.diverged) {

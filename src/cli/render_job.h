@@ -29,7 +29,8 @@ struct RenderJobResult {
   std::vector<std::string> frames;
   std::vector<double> frameTimes;  ///< the simulated time of each frame, in seconds
   std::string diagnostics, plot, stateOut;
-  long steps = 0;
+  long steps = 0;       ///< asked for
+  long stepsTaken = 0;  ///< done: steps, or those before a divergence
   double period = 0.0, tMax = 0.0, wallSeconds = 0.0;
   int width = 0, height = 0, levels = 0;
   bool diverged = false;

@@ -863,7 +863,8 @@ OrderedJson sceneToJson(const SceneDescription& scene, const std::string& sceneF
   j["version"] = kSceneFormatVersion;
   if (!scene.description.empty()) j["description"] = scene.description;
   j["mesh"] = meshForFile(scene.mesh, sceneFile);
-  if (scene.up != UpAxis::Auto) j["up"] = upAxisName(scene.up);
+  // Always written: a file without it (from before the key) loads as it was loaded then.
+  j["up"] = upAxisName(scene.up);
 
   const UniformProperties& p = scene.properties;
   OrderedJson props = OrderedJson::object();

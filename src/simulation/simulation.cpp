@@ -287,9 +287,16 @@ Index Simulation::addPositionConstraint(Index vertex, const Vec3& target, const 
     throw InvalidInputError(msg.str());
   }
   if (!target.allFinite()) throw InvalidInputError("the pin's target is not finite");
-  const Index id = addPositionConstraint(vertex, std::nullopt);
-  std::erase_if(travelling_, [&](const Travelling& t) { return t.id == id; });
-  travelling_.push_back({id, target, travel, std::nullopt});
+  const bool exists = vertex >= 0 && vertex < model_.mesh.numVertices();
+  if (exists && constraints_.find(ConstraintKind::Position, vertex))
+    throw InvalidInputError("vertex " + std::to_string(vertex) +
+                            " is pinned already: a pin that travels must be its only pin");
+  // The way is a function of time alone, from where the model as loaded has the vertex: a
+  // run resumed mid-way (--state-in, --start-time), a rollback or a reset finds the pin where
+  // the uninterrupted run has it.
+  const Vec3 from = exists ? Vec3(model_.mesh.positions().row(vertex).transpose()) : target;
+  const Index id = constraints_.addPosition(model_.mesh, vertex, from);
+  travelling_.push_back({id, from, target, travel});
   return id;
 }
 
@@ -300,22 +307,13 @@ std::optional<std::pair<Vec3, PinTravel>> Simulation::pinTravel(Index id) const 
 }
 
 void Simulation::moveTravellingPins() {
+  // The targets at the end of the coming cycle; an arrived pin keeps its target (and its
+  // travel, for a rollback and a save).
   const double end = state_.time + cyclePeriod_;
-  const std::span<const Constraint> items = constraints_.constraints();
-  for (Travelling& t : travelling_) {
-    const auto held =
-        std::find_if(items.begin(), items.end(), [&](const Constraint& c) { return c.id == t.id; });
-    if (held == items.end()) {  // gone: dropped below
-      t.travel.end = t.travel.start = -1.0;
-      continue;
-    }
-    if (!(end > t.travel.start)) continue;
-    if (!t.from) t.from = held->value;
+  for (const Travelling& t : travelling_) {
     const double share = t.travel.shareAt(end);
-    constraints_.setTarget(t.id, share >= 1.0 ? t.to : Vec3(*t.from + share * (t.to - *t.from)));
+    constraints_.setTarget(t.id, share >= 1.0 ? t.to : Vec3(t.from + share * (t.to - t.from)));
   }
-  // Arrived (or gone): the pin holds its target from now on.
-  std::erase_if(travelling_, [&](const Travelling& t) { return t.travel.shareAt(end) >= 1.0; });
 }
 
 Index Simulation::addNormalConstraint(Index vertex, std::optional<Vec3> normal) {

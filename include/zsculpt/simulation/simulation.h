@@ -151,12 +151,14 @@ class Simulation {
   /// it is; a normal constraint without a normal holds the current best-plane normal.
   /// Errors (InvalidInputError): see constraints.h.
   Index addPositionConstraint(Index vertex, std::optional<Vec3> target = std::nullopt);
-  /// A pin that travels to `target` over `travel` (PinTravel), from where the vertex is when
-  /// it sets off. Throws InvalidInputError as addPositionConstraint does, or for a travel
-  /// whose end is not after its start (or is not finite). The drag tool taking the pin
-  /// (setConstraintTarget, moveConstraint) or its removal ends the travel.
+  /// A pin that travels to `target` over `travel` (PinTravel), from where the model as loaded
+  /// has the vertex, its target a function of time alone (so a rollback, a reset or a run
+  /// resumed at --start-time finds it where an uninterrupted run has it). Throws
+  /// InvalidInputError as addPositionConstraint does, for a vertex pinned already, or for a
+  /// travel whose end is not after its start (or is not finite). The drag tool taking the
+  /// pin (setConstraintTarget, moveConstraint) or its removal ends the travel.
   Index addPositionConstraint(Index vertex, const Vec3& target, const PinTravel& travel);
-  /// The target and travel of position constraint `id` while it is on its way (not yet
+  /// The target and travel of position constraint `id` if it was given one (on its way or
   /// arrived); nullopt otherwise.
   [[nodiscard]] std::optional<std::pair<Vec3, PinTravel>> pinTravel(Index id) const;
   Index addNormalConstraint(Index vertex, std::optional<Vec3> normal = std::nullopt);
@@ -273,9 +275,9 @@ class Simulation {
   std::vector<Vec3> targetStart_, targetEnd_;  // position targets over a split cycle
   struct Travelling {
     Index id = 0;
+    Vec3 from = Vec3::Zero();  // the vertex in the model as loaded
     Vec3 to = Vec3::Zero();
     PinTravel travel;
-    std::optional<Vec3> from;  // where the pin was when it set off
   };
   std::vector<Travelling> travelling_;
   void moveTravellingPins();  // their targets at the end of the coming cycle
