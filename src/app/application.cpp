@@ -254,7 +254,8 @@ void Window::openModel(const std::string& path) {
   // Load first: a file that does not load leaves the current model untouched.
   SessionSetup setup;
   try {
-    setup = loadSessionSetup(path);
+    const int choice = std::clamp(upChoice_, 0, static_cast<int>(std::size(kUpChoices)) - 1);
+    setup = loadSessionSetup(path, io::parseUpAxis(kUpChoices[choice]));
   } catch (const Error& e) {
     message(std::string("cannot open: ") + e.what());
     return;
@@ -895,6 +896,7 @@ void Window::loadScript(const std::string& path) {
         {"probe", {"vertex", "name"}},
         {"save_scene", {"path"}},
         {"save_mesh", {"path"}},
+        {"open", {"path", "up"}},
         {"quit", {}}};
     const auto known = members.find(action);
     if (known == members.end())
@@ -1121,6 +1123,14 @@ void Window::stepScript() {
           saveScene(path.string(), false);
         else
           saveMesh(path.string());
+      } else if (action == "open") {
+        // The file panel's Open, with its up-axis choice (by name).
+        const std::string up = j.value("up", std::string("auto"));
+        const auto* choice = std::find(std::begin(kUpChoices), std::end(kUpChoices), up);
+        if (choice == std::end(kUpChoices))
+          throw InvalidInputError("open: up: '" + up + "' is not one of the panel's axes");
+        upChoice_ = static_cast<int>(choice - std::begin(kUpChoices));
+        openModel(j.at("path").get<std::string>());
       } else if (action == "quit") {
         ++scriptNext_;
         quit_ = true;

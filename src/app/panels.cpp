@@ -460,6 +460,12 @@ void Window::filePanel(const Snapshot& s) {
   help(
       "A mesh file assimp reads (OBJ, PLY, STL, OFF, glTF, FBX, ...), builtin:NAME, or a scene "
       "(.json).");
+  ImGui::SetNextItemWidth(6.0f * ImGui::GetFontSize());
+  ImGui::Combo("up axis", &upChoice_, kUpChoices, IM_ARRAYSIZE(kUpChoices));
+  help(
+      "The file's up axis, turned to +z as it opens (auto: y for glTF and Collada, the file's "
+      "own for FBX, z for OBJ, PLY, STL and OFF, which have no convention; a Y-up OBJ needs "
+      "y).");
   ImGui::InputText("##scene", &sceneField_);
   ImGui::SameLine();
   if (ImGui::Button("Save scene")) saveScene(sceneField_, false);

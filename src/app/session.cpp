@@ -73,7 +73,9 @@ double resolvePeriod(const io::SceneDescription& scene, const Model& model) {
 
 SessionSetup sessionSetupFromScene(io::SceneDescription scene) {
   SessionSetup setup;
-  setup.mesh = io::loadMeshSource(scene.mesh, nullptr, scene.up);
+  io::MeshLoadReport report;
+  setup.mesh = io::loadMeshSource(scene.mesh, &report, scene.up);
+  scene.up = report.up;
   const Model model = io::buildModel(scene, setup.mesh);
   setup.scheme = toScheme(scene.simulation.scheme);
   setup.period = resolvePeriod(scene, model);
@@ -81,12 +83,13 @@ SessionSetup sessionSetupFromScene(io::SceneDescription scene) {
   return setup;
 }
 
-SessionSetup loadSessionSetup(const std::string& source) {
+SessionSetup loadSessionSetup(const std::string& source, io::UpAxis up) {
   io::SceneDescription scene;
   if (io::isSceneFileName(source))
     scene = io::loadScene(source);
   else
     scene.mesh = source;
+  if (up != io::UpAxis::Auto) scene.up = up;
   return sessionSetupFromScene(std::move(scene));
 }
 

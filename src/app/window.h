@@ -189,6 +189,9 @@ class Window {
   Vec3 seenGravity_ = Vec3::Constant(std::numeric_limits<double>::quiet_NaN());
   double seenCap_ = -1.0;
   std::string pathField_;
+  // The Open field's up axis: an index into kUpChoices (0: auto).
+  static constexpr const char* kUpChoices[] = {"auto", "y", "z", "x", "-x", "-y", "-z"};
+  int upChoice_ = 0;
   std::string sceneField_;
   std::string meshField_;
   int screenshotCounter_ = 0;
