@@ -1126,9 +1126,8 @@ void Window::stepScript() {
       } else if (action == "open") {
         // The file panel's Open, with its up-axis choice (by name).
         const std::string up = j.value("up", std::string("auto"));
-        const auto* choice = std::find(std::begin(kUpChoices), std::end(kUpChoices), up);
-        if (choice == std::end(kUpChoices))
-          throw InvalidInputError("open: up: '" + up + "' is not one of the panel's axes");
+        const std::string name = io::upAxisName(io::parseUpAxis(up));  // +Y is y
+        const auto* choice = std::find(std::begin(kUpChoices), std::end(kUpChoices), name);
         upChoice_ = static_cast<int>(choice - std::begin(kUpChoices));
         openModel(j.at("path").get<std::string>());
       } else if (action == "quit") {

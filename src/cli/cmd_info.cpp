@@ -67,10 +67,15 @@ int runInfo(const ModelOptions& options, bool json) {
               << loaded.report.degenerateFacesDropped << " degenerate faces dropped, "
               << loaded.report.facesReversed
               << " faces reversed to wind as their neighbours (a closed sheet outward)\n";
-  if (loaded.report.up != io::UpAxis::PlusZ)
+  if (loaded.report.up != io::UpAxis::PlusZ) {
+    const std::string& source = loaded.source;
+    const bool collada = source.size() >= 4 && (source.compare(source.size() - 4, 4, ".dae") == 0 ||
+                                                source.compare(source.size() - 4, 4, ".DAE") == 0);
     std::cout << "  up axis " << io::upAxisName(loaded.report.up)
-              << " as read, turned to +z (--up z keeps the coordinates as read; assimp reads a "
-                 "Collada file Y-up whatever its <up_axis>)\n";
+              << " as read, turned to +z (--up z keeps the coordinates as read"
+              << (collada ? "; assimp reads a Collada file Y-up whatever its <up_axis>" : "")
+              << ")\n";
+  }
   if (loaded.report.nonOrientableComponents)
     std::cout << "  " << loaded.report.nonOrientableComponents
               << " non-orientable component(s): no winding agrees across every edge\n";

@@ -39,9 +39,6 @@ app::SessionSetup makeSetup(const OpenOptions& o) {
     scene = *loaded.scene;
   } else {
     scene.mesh = loaded.source;
-    // The axis the mesh was turned by (--up, or its format's), so that a recording replays
-    // and a saved scene reopens the mesh as the window showed it.
-    scene.up = loaded.report.up;
     // The uniform values the flags gave, so the recorded scene stays small.
     const PhysicalProperties& p = loaded.model.properties;
     if (p.mass.size() > 0) {
@@ -54,6 +51,9 @@ app::SessionSetup makeSetup(const OpenOptions& o) {
     scene.properties.stiffnessCap = p.stiffnessCap;
     scene.properties.gravity = p.gravity;
   }
+  // The axis the mesh was turned by (--up, the scene's, or its format's), so that a recording
+  // replays and a saved scene reopens the mesh as the window showed it.
+  scene.up = loaded.report.up;
   // Whatever the flags did to the model is now in the scene, as values or full arrays.
   io::recordProperties(scene, loaded.model);
   // A scene's own step above the stable limit (the window allows one, in red, and saves

@@ -863,7 +863,8 @@ OrderedJson sceneToJson(const SceneDescription& scene, const std::string& sceneF
   j["version"] = kSceneFormatVersion;
   if (!scene.description.empty()) j["description"] = scene.description;
   j["mesh"] = meshForFile(scene.mesh, sceneFile);
-  // Always written: a file without it (from before the key) loads as it was loaded then.
+  // Always written, so that a save reloads the mesh the same way whatever Auto comes to mean;
+  // a file without it loads as Auto (docs/scene-format.md).
   j["up"] = upAxisName(scene.up);
 
   const UniformProperties& p = scene.properties;

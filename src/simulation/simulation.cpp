@@ -271,6 +271,10 @@ void Simulation::gatherLoads(double t, const Points& position, Points& out,
 
 Index Simulation::addPositionConstraint(Index vertex, std::optional<Vec3> target) {
   const bool exists = vertex >= 0 && vertex < model_.mesh.numVertices();
+  for (const Travelling& t : travelling_)
+    if (constraints_.get(t.id).vertex == vertex)
+      throw InvalidInputError("vertex " + std::to_string(vertex) +
+                              " has a pin that travels, which must be its only pin");
   const Vec3 where = target   ? *target
                      : exists ? Vec3(state_.position.row(vertex).transpose())
                               : Vec3::Zero();
@@ -291,12 +295,38 @@ Index Simulation::addPositionConstraint(Index vertex, const Vec3& target, const 
   if (exists && constraints_.find(ConstraintKind::Position, vertex))
     throw InvalidInputError("vertex " + std::to_string(vertex) +
                             " is pinned already: a pin that travels must be its only pin");
-  // The way is a function of time alone, from where the model as loaded has the vertex: a
-  // run resumed mid-way (--state-in, --start-time), a rollback or a reset finds the pin where
-  // the uninterrupted run has it.
-  const Vec3 from = exists ? Vec3(model_.mesh.positions().row(vertex).transpose()) : target;
-  const Index id = constraints_.addPosition(model_.mesh, vertex, from);
+  // The way is a function of time alone, from where the vertex is when the travel has yet
+  // to start (the state given, which may be displaced), or, for a run resumed mid-way
+  // (--state-in with --start-time past the start), from where the model as loaded has it,
+  // which is where an uninterrupted run from the loaded shape set off: it then finds the pin
+  // where that run has it. A rollback or a reset finds it on its way too.
+  const bool begun = state_.time > travel.start;
+  const Vec3 from = !exists ? target
+                    : begun ? Vec3(model_.mesh.positions().row(vertex).transpose())
+                            : Vec3(state_.position.row(vertex).transpose());
+  const double share = travel.shareAt(state_.time);
+  const Vec3 now = share >= 1.0 ? target : Vec3(from + share * (target - from));
+  const Index id = constraints_.addPosition(model_.mesh, vertex, now);
   travelling_.push_back({id, from, target, travel});
+  if (begun) {
+    // Resumed from a state whose vertex is not on the way (not one this travel made): the
+    // first cycle takes it there.
+    const double distance = (now - state_.position.row(vertex).transpose()).norm();
+    double edges = 0.0;
+    for (Index e : model_.mesh.vertexEdges(vertex)) {
+      const auto [a, b] = model_.mesh.edge(e);
+      edges += (model_.mesh.positions().row(a) - model_.mesh.positions().row(b)).norm();
+    }
+    const auto count = model_.mesh.vertexEdges(vertex).size();
+    if (count > 0 && distance > edges / static_cast<double>(count)) {
+      std::ostringstream msg;
+      msg.precision(3);
+      msg << "position constraint at vertex " << vertex << ": the travel began at " << travel.start
+          << " s from where the mesh has the vertex, and the state puts it " << distance
+          << " from its way at " << state_.time << " s, which the first cycle closes at once";
+      warnings_.push_back(msg.str());
+    }
+  }
   return id;
 }
 
