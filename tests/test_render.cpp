@@ -618,6 +618,40 @@ TEST(Offscreen, NormalPinArrowsAreFramedAndLeaveAPinnedVertexItsRedCube) {
   EXPECT_EQ(blueAt, 0);
 }
 
+TEST(Offscreen, SheetsMeetingAtAnEdgeAreEachShadedWithTheirOwnNormal) {
+  // The three fins share their spine. One normal per vertex averaged the three sheets' normals
+  // there, so each flat fin was shaded in a gradient from its spine (a review saw streaks);
+  // each fan of faces now has its own vertex on the GPU and its own normal. A flat fin
+  // smooth-shaded is then as even as flat-shaded.
+  const Mesh mesh = makeFins();  // fin 0: (t, 0, z), t and z in [0, 1]
+  Frame frame = frameFor(mesh, -75, 10, 480, 360);
+  frame.display.backgroundGradient = false;
+  std::vector<Eigen::Vector2d> onFin;
+  for (double t : {0.12, 0.3, 0.5, 0.7, 0.9}) {
+    Eigen::Vector2d pixel;
+    ASSERT_TRUE(frame.camera.project(Vec3(t, 0.0, 0.5), 480, 360, pixel));
+    onFin.push_back(pixel);
+  }
+  auto spread = [&](const Image& image) {
+    int lo = 255, hi = 0;
+    for (const Eigen::Vector2d& at : onFin) {
+      const int g = image.pixel(static_cast<int>(at.x()), static_cast<int>(at.y()))[1];
+      lo = std::min(lo, g);
+      hi = std::max(hi, g);
+    }
+    return hi - lo;
+  };
+  for (const NormalMode mode : {NormalMode::AreaWeighted, NormalMode::BestPlane}) {
+    frame.normals = mode;
+    frame.display.flatShading = false;
+    const int smooth = spread(offscreen().render(frame, 480, 360));
+    frame.display.flatShading = true;
+    const int flat = spread(offscreen().render(frame, 480, 360));
+    std::cout << "fin 0's green spread: smooth " << smooth << ", flat " << flat << "\n";
+    EXPECT_LE(smooth, flat + 4) << static_cast<int>(mode);
+  }
+}
+
 TEST(Offscreen, ReferenceTorusWithColourMap) {
   const Mesh mesh = makeTorus();
   Frame frame = frameFor(mesh, -50, 40, 320, 240, 1.3);

@@ -10,6 +10,7 @@
 #include <numbers>
 #include <sstream>
 #include <string>
+#include <unordered_map>
 #include <unordered_set>
 #include <vector>
 
@@ -174,6 +175,13 @@ struct Renderer::Impl {
   Index keyEdges = -1;
   Index keyRefined = -1;
   Index surfaceVertexCount = 0;
+  // Sheets that meet at a vertex (three fins on one edge): each fan of faces around such a
+  // vertex gets a vertex of its own on the GPU, shaded with its fan's normal, rather than one
+  // normal averaged over all the sheets. fanVertex[k] is fan k's GPU vertex (the surface
+  // vertex itself for its first fan, an extra one after surfaceVertexCount for the others),
+  // fanSource[k] the surface vertex, its faces fanFaces[fanStart[k] .. fanStart[k + 1]).
+  std::vector<Index> fanVertex, fanSource, fanStart, fanFaces;
+  Index gpuVertexCount = 0;  // surfaceVertexCount plus the extra fan vertices
   const CsrIndex* surfaceFaces = nullptr;
   const CsrIndex* surfaceNeighbors = nullptr;
   CsrIndex refinedNeighbors;
@@ -513,6 +521,91 @@ struct Renderer::Impl {
     gl.VertexAttribPointer(0, 3, GL_FLOAT, GL_FALSE, 3 * sizeof(float), nullptr);
   }
 
+  // Groups the faces around each vertex into fans, faces joined across the vertex's edges
+  // that exactly two faces share; a vertex with more than one fan (sheets meeting there)
+  // gives every fan after the first a GPU vertex of its own (fanVertex ...). Returns each
+  // face corner's GPU vertex, aligned with faces.indices.
+  std::vector<Index> splitSheets(const CsrIndex& faces, Index n) {
+    fanVertex.clear();
+    fanSource.clear();
+    fanStart.assign(1, 0);
+    fanFaces.clear();
+    std::vector<Index> cornerVertex(faces.indices.begin(), faces.indices.end());
+    gpuVertexCount = n;
+    auto key = [](Index a, Index b) {
+      return (static_cast<std::uint64_t>(std::min(a, b)) << 32) |
+             static_cast<std::uint32_t>(std::max(a, b));
+    };
+    std::unordered_map<std::uint64_t, int> edgeFaces;
+    for (Index f = 0; f < faces.rows(); ++f) {
+      const auto c = faces.row(f);
+      for (size_t k = 0; k < c.size(); ++k) ++edgeFaces[key(c[k], c[(k + 1) % c.size()])];
+    }
+    bool anySheetEdge = false;  // an edge of three or more faces, where sheets meet
+    for (const auto& [edge, count] : edgeFaces) anySheetEdge = anySheetEdge || count > 2;
+    if (!anySheetEdge) return cornerVertex;
+    // The corners at each vertex: (face, corner position in faces.indices).
+    std::vector<std::pair<Index, Index>> pairs;
+    for (Index f = 0; f < faces.rows(); ++f)
+      for (Index at = faces.offsets[static_cast<size_t>(f)];
+           at < faces.offsets[static_cast<size_t>(f) + 1]; ++at)
+        pairs.emplace_back(faces.indices[static_cast<size_t>(at)], at);
+    std::sort(pairs.begin(), pairs.end());
+    std::vector<Index> parent, faceOf;
+    std::unordered_map<Index, Index> byNeighbour;
+    for (size_t begin = 0; begin < pairs.size();) {
+      const Index v = pairs[begin].first;
+      size_t end = begin;
+      while (end < pairs.size() && pairs[end].first == v) ++end;
+      const size_t count = end - begin;
+      parent.resize(count);
+      faceOf.resize(count);
+      byNeighbour.clear();
+      auto root = [&](Index i) {
+        while (parent[static_cast<size_t>(i)] != i) i = parent[static_cast<size_t>(i)];
+        return i;
+      };
+      for (size_t i = 0; i < count; ++i) {
+        const Index at = pairs[begin + i].second;
+        const Index f =
+            static_cast<Index>(std::upper_bound(faces.offsets.begin(), faces.offsets.end(), at) -
+                               faces.offsets.begin() - 1);
+        faceOf[i] = f;
+        parent[i] = static_cast<Index>(i);
+        const auto c = faces.row(f);
+        const size_t local = static_cast<size_t>(at - faces.offsets[static_cast<size_t>(f)]);
+        for (const Index w : {c[(local + c.size() - 1) % c.size()], c[(local + 1) % c.size()]}) {
+          if (edgeFaces[key(v, w)] != 2) continue;  // a border, or where sheets meet
+          const auto [it, fresh] = byNeighbour.try_emplace(w, static_cast<Index>(i));
+          if (!fresh) parent[static_cast<size_t>(root(static_cast<Index>(i)))] = root(it->second);
+        }
+      }
+      // Fans in the order of their first corner; the first keeps v.
+      std::vector<Index> fanOf(count, -1), firstOfRoot(count, -1);
+      Index fans = 0;
+      for (size_t i = 0; i < count; ++i) {
+        const Index r = root(static_cast<Index>(i));
+        if (firstOfRoot[static_cast<size_t>(r)] < 0) firstOfRoot[static_cast<size_t>(r)] = fans++;
+        fanOf[i] = firstOfRoot[static_cast<size_t>(r)];
+      }
+      if (fans > 1) {
+        for (Index fan = 0; fan < fans; ++fan) {
+          const Index gpu = fan == 0 ? v : gpuVertexCount++;
+          fanVertex.push_back(gpu);
+          fanSource.push_back(v);
+          for (size_t i = 0; i < count; ++i) {
+            if (fanOf[i] != fan) continue;
+            fanFaces.push_back(faceOf[i]);
+            cornerVertex[static_cast<size_t>(pairs[begin + i].second)] = gpu;
+          }
+          fanStart.push_back(static_cast<Index>(fanFaces.size()));
+        }
+      }
+      begin = end;
+    }
+    return cornerVertex;
+  }
+
   void rebuildTopology(const Frame& frame) {
     const Mesh& mesh = *frame.mesh;
     const SubdivisionStencil* stencil = frame.stencil;
@@ -526,11 +619,14 @@ struct Renderer::Impl {
     const auto& surfaceEdges = stencil != nullptr ? stencil->refinedEdges() : mesh.edges();
     const Index n = surfaceVertexCount;
 
+    // Each face corner's GPU vertex: the surface vertex, or its fan's own where sheets meet.
+    std::vector<Index> cornerVertex = splitSheets(*surfaceFaces, n);
     // Triangles: a fan per polygon.
     std::vector<std::uint32_t> triangles;
     for (Index f = 0; f < surfaceFaces->rows(); ++f) {
-      const auto corners = surfaceFaces->row(f);
-      for (size_t k = 1; k + 1 < corners.size(); ++k) {
+      const Index* corners = cornerVertex.data() + surfaceFaces->offsets[static_cast<size_t>(f)];
+      const size_t size = surfaceFaces->row(f).size();
+      for (size_t k = 1; k + 1 < size; ++k) {
         triangles.insert(triangles.end(), {static_cast<std::uint32_t>(corners[0]),
                                            static_cast<std::uint32_t>(corners[k]),
                                            static_cast<std::uint32_t>(corners[k + 1])});
@@ -593,9 +689,9 @@ struct Renderer::Impl {
     refined.resize(stencil != nullptr ? n : 0, 3);
     normals.resize(n, 3);
     refinedScalar.resize(stencil != nullptr ? n : 0);
-    positionData.assign(static_cast<size_t>(n) * 3, 0.0f);
-    normalData.assign(static_cast<size_t>(n) * 3, 0.0f);
-    scalarData.assign(static_cast<size_t>(n), 0.0f);
+    positionData.assign(static_cast<size_t>(gpuVertexCount) * 3, 0.0f);
+    normalData.assign(static_cast<size_t>(gpuVertexCount) * 3, 0.0f);
+    scalarData.assign(static_cast<size_t>(gpuVertexCount), 0.0f);
     controlData.assign(static_cast<size_t>(mesh.numVertices()) * 3, 0.0f);
 
     // GPU buffers: allocated here, refreshed with glBufferSubData every frame.
@@ -721,6 +817,24 @@ struct Renderer::Impl {
         normalData[3 * v + k] = static_cast<float>(normals(v, k));
       }
     }
+    // Where sheets meet, each fan's vertex: the shared position, the fan's own normal (the
+    // sum of its faces' area vectors).
+    for (size_t fan = 0; fan < fanVertex.size(); ++fan) {
+      const Index gpu = fanVertex[fan], v = fanSource[fan];
+      Vec3 area = Vec3::Zero();
+      for (Index k = fanStart[fan]; k < fanStart[fan + 1]; ++k) {
+        const auto c = surfaceFaces->row(fanFaces[static_cast<size_t>(k)]);
+        for (size_t i = 0; i < c.size(); ++i)
+          area +=
+              surface->row(c[i]).transpose().cross(surface->row(c[(i + 1) % c.size()]).transpose());
+      }
+      const double length = area.norm();
+      if (length > 0.0) area /= length;
+      for (int k = 0; k < 3; ++k) {
+        positionData[3 * gpu + k] = static_cast<float>((*surface)(v, k));
+        normalData[3 * gpu + k] = static_cast<float>(length > 0.0 ? area[k] : normals(v, k));
+      }
+    }
     gl.BindBuffer(GL_ARRAY_BUFFER, positionVbo);
     gl.BufferSubData(GL_ARRAY_BUFFER, 0, static_cast<GLsizeiptr>(positionData.size() * 4),
                      positionData.data());
@@ -766,6 +880,9 @@ struct Renderer::Impl {
         drawn = &refinedScalar;
       }
       for (Index v = 0; v < n; ++v) scalarData[v] = static_cast<float>((*drawn)[v]);
+      for (size_t fan = 0; fan < fanVertex.size(); ++fan)
+        scalarData[static_cast<size_t>(fanVertex[fan])] =
+            static_cast<float>((*drawn)[fanSource[fan]]);
       gl.BindBuffer(GL_ARRAY_BUFFER, scalarVbo);
       gl.BufferSubData(GL_ARRAY_BUFFER, 0, static_cast<GLsizeiptr>(scalarData.size() * 4),
                        scalarData.data());
