@@ -1019,6 +1019,22 @@ TEST_F(Cli, DemoWritesTheDefaultSceneToFramesAndPlotsAndPrintsThePaths) {
   const auto first = zsculpt::render::readPng(path("demo/frame_0000.png"));
   const auto last = zsculpt::render::readPng(path("demo/frame_0003.png"));
   EXPECT_GT(zsculpt::render::meanAbsoluteDifference(first, last), 5.0 / 255.0);
+  // The plot shades when the loads act (0 to 1 s and 0.5 to 2 s of 12 s), in each panel:
+  // the band's colour left of the middle of every third of the image, almost none right.
+  const auto plot = zsculpt::render::readPng(path("demo/energy_momentum.png"));
+  const int third = plot.height / 3;
+  for (int k = 0; k < 3; ++k) {
+    int early = 0, late = 0;
+    for (int y = k * third; y < (k + 1) * third; ++y)
+      for (int x = 0; x < plot.width * 3 / 4; ++x) {
+        const auto p = plot.pixel(x, y);
+        const bool band = p[0] > 235 && p[1] > 215 && p[1] < 245 && p[2] > 150 && p[2] < 215;
+        (x < plot.width / 2 ? early : late) += band;
+      }
+    EXPECT_GT(early, 1000) << "panel " << k;
+    // (Anti-aliased edges of the orange curve pass the colour test here and there.)
+    EXPECT_LT(late, early / 20) << "panel " << k << ", early " << early;
+  }
 }
 
 namespace {

@@ -349,7 +349,21 @@ RenderJobResult runRenderJob(const RenderJobOptions& o) {
   result.plot = (fs::path(o.out) / "energy_momentum.png").string();
   render::PlotOptions plotOptions;
   plotOptions.title = fs::path(loaded.source).filename().string() + ": energy and momentum";
-  render::savePlot(result.plot, render::energyMomentumPanels(series), plotOptions);
+  // When the loads act, shaded: the energy and the momenta change there (a review).
+  std::vector<render::PlotPanel> panels = render::energyMomentumPanels(series);
+  const double runStart = series.time.empty() ? 0.0 : series.time.front();
+  const double runEnd = series.time.empty() ? 0.0 : series.time.back();
+  std::vector<render::Band> loads;
+  for (const auto* list : {&sim.forces(), &sim.torques()})
+    for (const TimedLoad& load : *list) {
+      const double from = std::max(load.start, runStart), to = std::min(load.end, runEnd);
+      if (to > from) loads.push_back({from, to});
+    }
+  for (render::PlotPanel& panel : panels) {
+    panel.bands = loads;
+    panel.bandLabel = "load";
+  }
+  render::savePlot(result.plot, panels, plotOptions);
   if (!o.run.stateOut.empty()) {
     io::saveState(run.lastGood(), o.run.stateOut);
     result.stateOut = o.run.stateOut;
