@@ -99,6 +99,20 @@ TEST(Mesh, FinsHaveOneNonManifoldEdgeAndSixBoundaryEdgesPerFinPair) {
   EXPECT_EQ(m.boundaryEdges().size(), 9u);
 }
 
+TEST(Mesh, MeanEdgeLengthAtAVertexUsesThePositionsGiven) {
+  // Grid vertex (i, j) at (i, j, 0): unit edges; the corner has two, an inner vertex four.
+  const Mesh grid = makeGrid(4);
+  EXPECT_DOUBLE_EQ(grid.meanEdgeLengthAt(0, grid.positions()), 1.0);
+  EXPECT_DOUBLE_EQ(grid.meanEdgeLengthAt(5, grid.positions()), 1.0);
+  // Stretched along x by 3: the corner's edges are 3 (to vertex 1) and 1 (to vertex 4).
+  Points stretched = grid.positions();
+  stretched.col(0) *= 3.0;
+  EXPECT_DOUBLE_EQ(grid.meanEdgeLengthAt(0, stretched), 2.0);
+  // A curve's end has one edge.
+  const Mesh helix = makeHelix(8);
+  EXPECT_GT(helix.meanEdgeLengthAt(0, helix.positions()), 0.0);
+}
+
 TEST(Mesh, ClosedSurfacesHaveNoBoundary) {
   EXPECT_TRUE(makeTorus().boundaryEdges().empty());
   EXPECT_TRUE(makeDodecahedron().boundaryEdges().empty());

@@ -87,6 +87,17 @@ int colorDistance(const std::uint8_t* p, Color c) {
 }
 
 // Whether a pixel within `radius` of (x, y) is within `tolerance` (sum over RGB) of `c`.
+// The range of the green channel over `pixels` (how evenly a surface is shaded there).
+int greenSpread(const Image& image, const std::vector<Eigen::Vector2d>& pixels) {
+  int lo = 255, hi = 0;
+  for (const Eigen::Vector2d& at : pixels) {
+    const int g = image.pixel(static_cast<int>(at.x()), static_cast<int>(at.y()))[1];
+    lo = std::min(lo, g);
+    hi = std::max(hi, g);
+  }
+  return hi - lo;
+}
+
 bool hasColorNear(const Image& image, double x, double y, Color c, int radius, int tolerance) {
   const int cx = static_cast<int>(std::floor(x));
   const int cy = static_cast<int>(std::floor(y));
@@ -547,15 +558,7 @@ TEST(Offscreen, FlatShadingLightsEachFaceByItsOwnPlane) {
       ASSERT_TRUE(frame.camera.project(p, 480, 360, pixel));
       inside.push_back(pixel);
     }
-  auto spread = [&](const Image& image) {
-    int lo = 255, hi = 0;
-    for (const Eigen::Vector2d& at : inside) {
-      const int g = image.pixel(static_cast<int>(at.x()), static_cast<int>(at.y()))[1];
-      lo = std::min(lo, g);
-      hi = std::max(hi, g);
-    }
-    return hi - lo;
-  };
+  auto spread = [&](const Image& image) { return greenSpread(image, inside); };
   const Image smooth = offscreen().render(frame, 480, 360);
   frame.display.flatShading = true;
   const Image flat = offscreen().render(frame, 480, 360);
@@ -632,15 +635,7 @@ TEST(Offscreen, SheetsMeetingAtAnEdgeAreEachShadedWithTheirOwnNormal) {
     ASSERT_TRUE(frame.camera.project(Vec3(t, 0.0, 0.5), 480, 360, pixel));
     onFin.push_back(pixel);
   }
-  auto spread = [&](const Image& image) {
-    int lo = 255, hi = 0;
-    for (const Eigen::Vector2d& at : onFin) {
-      const int g = image.pixel(static_cast<int>(at.x()), static_cast<int>(at.y()))[1];
-      lo = std::min(lo, g);
-      hi = std::max(hi, g);
-    }
-    return hi - lo;
-  };
+  auto spread = [&](const Image& image) { return greenSpread(image, onFin); };
   for (const NormalMode mode : {NormalMode::AreaWeighted, NormalMode::BestPlane}) {
     frame.normals = mode;
     frame.display.flatShading = false;

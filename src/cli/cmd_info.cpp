@@ -1,5 +1,7 @@
 // zsculpt info MESH|SCENE [--json]: topology, properties and critical sampling period.
 
+#include <cctype>
+#include <filesystem>
 #include <iostream>
 #include <sstream>
 
@@ -68,9 +70,9 @@ int runInfo(const ModelOptions& options, bool json) {
               << loaded.report.facesReversed
               << " faces reversed to wind as their neighbours (a closed sheet outward)\n";
   if (loaded.report.up != io::UpAxis::PlusZ) {
-    const std::string& source = loaded.source;
-    const bool collada = source.size() >= 4 && (source.compare(source.size() - 4, 4, ".dae") == 0 ||
-                                                source.compare(source.size() - 4, 4, ".DAE") == 0);
+    std::string extension = std::filesystem::path(loaded.source).extension().string();
+    for (char& c : extension) c = static_cast<char>(std::tolower(static_cast<unsigned char>(c)));
+    const bool collada = extension == ".dae";
     std::cout << "  up axis " << io::upAxisName(loaded.report.up)
               << " as read, turned to +z (--up z keeps the coordinates as read"
               << (collada ? "; assimp reads a Collada file Y-up whatever its <up_axis>" : "")

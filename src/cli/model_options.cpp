@@ -398,15 +398,10 @@ void RunOptions::prepare(const LoadedModel& loaded, Simulation& sim) const {
   auto warnIfFar = [&](const std::string& what, Index vertex, const Vec3& target,
                        const std::string& remedy) {
     const Mesh& mesh = sim.model().mesh;
-    if (vertex < 0 || vertex >= mesh.numVertices() || mesh.vertexEdges(vertex).empty()) return;
-    double edges = 0.0;
-    for (Index e : mesh.vertexEdges(vertex)) {
-      const auto [a, b] = mesh.edge(e);
-      edges += (sim.state().position.row(a) - sim.state().position.row(b)).norm();
-    }
-    const double edge = edges / static_cast<double>(mesh.vertexEdges(vertex).size());
+    if (vertex < 0 || vertex >= mesh.numVertices()) return;
+    const double edge = mesh.meanEdgeLengthAt(vertex, sim.state().position);
     const double distance = (target - sim.state().position.row(vertex).transpose()).norm();
-    if (!(distance > edge)) return;
+    if (!(edge > 0.0 && distance > edge)) return;
     std::ostringstream msg;
     msg.precision(3);
     msg << what << ": the target is " << distance << " from the vertex (" << distance / edge

@@ -2255,16 +2255,12 @@ void saveMesh(const Mesh& mesh, const std::string& path) {
   // has none.
   const bool withPoints = format.id == "objnomtl" || format.fans;
   std::vector<unsigned> rotated;
-  // Y-up formats: +z up turned to +y up, the inverse of turnUpToZ(PlusY), so loadMesh's Auto
-  // reads the file back as it was.
+  // Y-up formats: +z up turned to +y up, so that loadMesh's Auto reads the file back as it
+  // was. Turning -y up to +z, (x, z, -y), is the inverse of turning +y up.
   std::optional<Mesh> turned;
   if (format.yUp) {
     Points points = mesh.positions();
-    for (Index i = 0; i < points.rows(); ++i) {
-      const double y = points(i, 1), z = points(i, 2);
-      points(i, 1) = z;
-      points(i, 2) = 0.0 - y;
-    }
+    turnUpToZ(points, UpAxis::MinusY);
     turned.emplace(mesh);
     turned->setPositions(points);
   }

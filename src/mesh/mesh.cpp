@@ -221,4 +221,12 @@ double Mesh::meanEdgeLength() const {
   return sum / static_cast<double>(edges_.size());
 }
 
+double Mesh::meanEdgeLengthAt(Index v, const Points& positions) const {
+  const auto edges = vertexEdges(v);
+  if (edges.empty()) return 0.0;
+  double sum = 0.0;
+  for (Index e : edges) sum += (positions.row(edge(e)[0]) - positions.row(edge(e)[1])).norm();
+  return sum / static_cast<double>(edges.size());
+}
+
 }  // namespace zsculpt

@@ -11,7 +11,6 @@
 #include <sstream>
 #include <string>
 #include <unordered_map>
-#include <unordered_set>
 #include <vector>
 
 #include "gl_functions.h"
@@ -65,6 +64,22 @@ void basisFrom(const Vec3& d, Vec3& x, Vec3& y) {
   const Vec3 helper = std::abs(d.z()) < 0.9 ? Vec3::UnitZ() : Vec3::UnitX();
   x = helper.cross(d).normalized();
   y = d.cross(x);
+}
+
+// An undirected edge as one hashable number.
+std::uint64_t edgeKey(Index a, Index b) {
+  return (static_cast<std::uint64_t>(std::min(a, b)) << 32) |
+         static_cast<std::uint32_t>(std::max(a, b));
+}
+
+// How many faces of `faces` have each edge (by edgeKey).
+std::unordered_map<std::uint64_t, int> facesPerEdge(const CsrIndex& faces) {
+  std::unordered_map<std::uint64_t, int> count;
+  for (Index f = 0; f < faces.rows(); ++f) {
+    const auto c = faces.row(f);
+    for (size_t k = 0; k < c.size(); ++k) ++count[edgeKey(c[k], c[(k + 1) % c.size()])];
+  }
+  return count;
 }
 
 // The size of the pin cubes and arrow heads, from the control mesh's scale: a third of an
@@ -525,81 +540,69 @@ struct Renderer::Impl {
   // that exactly two faces share; a vertex with more than one fan (sheets meeting there)
   // gives every fan after the first a GPU vertex of its own (fanVertex ...). Returns each
   // face corner's GPU vertex, aligned with faces.indices.
-  std::vector<Index> splitSheets(const CsrIndex& faces, Index n) {
+  std::vector<Index> splitSheets(const CsrIndex& faces, Index n,
+                                 const std::unordered_map<std::uint64_t, int>& edgeFaces) {
     fanVertex.clear();
     fanSource.clear();
     fanStart.assign(1, 0);
     fanFaces.clear();
     std::vector<Index> cornerVertex(faces.indices.begin(), faces.indices.end());
     gpuVertexCount = n;
-    auto key = [](Index a, Index b) {
-      return (static_cast<std::uint64_t>(std::min(a, b)) << 32) |
-             static_cast<std::uint32_t>(std::max(a, b));
-    };
-    std::unordered_map<std::uint64_t, int> edgeFaces;
-    for (Index f = 0; f < faces.rows(); ++f) {
-      const auto c = faces.row(f);
-      for (size_t k = 0; k < c.size(); ++k) ++edgeFaces[key(c[k], c[(k + 1) % c.size()])];
-    }
-    bool anySheetEdge = false;  // an edge of three or more faces, where sheets meet
-    for (const auto& [edge, count] : edgeFaces) anySheetEdge = anySheetEdge || count > 2;
-    if (!anySheetEdge) return cornerVertex;
-    // The corners at each vertex: (face, corner position in faces.indices).
-    std::vector<std::pair<Index, Index>> pairs;
+    // Only an edge of three or more faces makes sheets meet.
+    if (std::none_of(edgeFaces.begin(), edgeFaces.end(),
+                     [](const auto& e) { return e.second > 2; }))
+      return cornerVertex;
+    // The corners at each vertex: (vertex, face, position in faces.indices).
+    std::vector<std::array<Index, 3>> corners;
     for (Index f = 0; f < faces.rows(); ++f)
       for (Index at = faces.offsets[static_cast<size_t>(f)];
            at < faces.offsets[static_cast<size_t>(f) + 1]; ++at)
-        pairs.emplace_back(faces.indices[static_cast<size_t>(at)], at);
-    std::sort(pairs.begin(), pairs.end());
-    std::vector<Index> parent, faceOf;
+        corners.push_back({faces.indices[static_cast<size_t>(at)], f, at});
+    std::sort(corners.begin(), corners.end());
+    std::vector<Index> parent, fanOf, firstOfRoot;
     std::unordered_map<Index, Index> byNeighbour;
-    for (size_t begin = 0; begin < pairs.size();) {
-      const Index v = pairs[begin].first;
+    for (size_t begin = 0; begin < corners.size();) {
+      const Index v = corners[begin][0];
       size_t end = begin;
-      while (end < pairs.size() && pairs[end].first == v) ++end;
+      while (end < corners.size() && corners[end][0] == v) ++end;
       const size_t count = end - begin;
+      // Union-find over v's corners, joined across v's edges of exactly two faces.
       parent.resize(count);
-      faceOf.resize(count);
       byNeighbour.clear();
       auto root = [&](Index i) {
         while (parent[static_cast<size_t>(i)] != i) i = parent[static_cast<size_t>(i)];
         return i;
       };
       for (size_t i = 0; i < count; ++i) {
-        const Index at = pairs[begin + i].second;
-        const Index f =
-            static_cast<Index>(std::upper_bound(faces.offsets.begin(), faces.offsets.end(), at) -
-                               faces.offsets.begin() - 1);
-        faceOf[i] = f;
+        const auto [vertex, f, at] = corners[begin + i];
         parent[i] = static_cast<Index>(i);
         const auto c = faces.row(f);
         const size_t local = static_cast<size_t>(at - faces.offsets[static_cast<size_t>(f)]);
         for (const Index w : {c[(local + c.size() - 1) % c.size()], c[(local + 1) % c.size()]}) {
-          if (edgeFaces[key(v, w)] != 2) continue;  // a border, or where sheets meet
+          if (edgeFaces.at(edgeKey(v, w)) != 2) continue;  // a border, or where sheets meet
           const auto [it, fresh] = byNeighbour.try_emplace(w, static_cast<Index>(i));
           if (!fresh) parent[static_cast<size_t>(root(static_cast<Index>(i)))] = root(it->second);
         }
       }
       // Fans in the order of their first corner; the first keeps v.
-      std::vector<Index> fanOf(count, -1), firstOfRoot(count, -1);
+      fanOf.assign(count, -1);
+      firstOfRoot.assign(count, -1);
       Index fans = 0;
       for (size_t i = 0; i < count; ++i) {
         const Index r = root(static_cast<Index>(i));
         if (firstOfRoot[static_cast<size_t>(r)] < 0) firstOfRoot[static_cast<size_t>(r)] = fans++;
         fanOf[i] = firstOfRoot[static_cast<size_t>(r)];
       }
-      if (fans > 1) {
-        for (Index fan = 0; fan < fans; ++fan) {
-          const Index gpu = fan == 0 ? v : gpuVertexCount++;
-          fanVertex.push_back(gpu);
-          fanSource.push_back(v);
-          for (size_t i = 0; i < count; ++i) {
-            if (fanOf[i] != fan) continue;
-            fanFaces.push_back(faceOf[i]);
-            cornerVertex[static_cast<size_t>(pairs[begin + i].second)] = gpu;
-          }
-          fanStart.push_back(static_cast<Index>(fanFaces.size()));
+      for (Index fan = 0; fans > 1 && fan < fans; ++fan) {
+        const Index gpu = fan == 0 ? v : gpuVertexCount++;
+        fanVertex.push_back(gpu);
+        fanSource.push_back(v);
+        for (size_t i = 0; i < count; ++i) {
+          if (fanOf[i] != fan) continue;
+          fanFaces.push_back(corners[begin + i][1]);
+          cornerVertex[static_cast<size_t>(corners[begin + i][2])] = gpu;
         }
+        fanStart.push_back(static_cast<Index>(fanFaces.size()));
       }
       begin = end;
     }
@@ -619,8 +622,9 @@ struct Renderer::Impl {
     const auto& surfaceEdges = stencil != nullptr ? stencil->refinedEdges() : mesh.edges();
     const Index n = surfaceVertexCount;
 
+    const std::unordered_map<std::uint64_t, int> edgeFaces = facesPerEdge(*surfaceFaces);
     // Each face corner's GPU vertex: the surface vertex, or its fan's own where sheets meet.
-    std::vector<Index> cornerVertex = splitSheets(*surfaceFaces, n);
+    std::vector<Index> cornerVertex = splitSheets(*surfaceFaces, n, edgeFaces);
     // Triangles: a fan per polygon.
     std::vector<std::uint32_t> triangles;
     for (Index f = 0; f < surfaceFaces->rows(); ++f) {
@@ -648,17 +652,8 @@ struct Renderer::Impl {
         }
       }
     } else {
-      std::unordered_set<std::uint64_t> faceEdges;
-      auto key = [](Index a, Index b) {
-        return (static_cast<std::uint64_t>(std::min(a, b)) << 32) |
-               static_cast<std::uint32_t>(std::max(a, b));
-      };
-      for (Index f = 0; f < surfaceFaces->rows(); ++f) {
-        const auto c = surfaceFaces->row(f);
-        for (size_t k = 0; k < c.size(); ++k) faceEdges.insert(key(c[k], c[(k + 1) % c.size()]));
-      }
       for (const auto& e : surfaceEdges) {
-        if (faceEdges.count(key(e[0], e[1])) == 0) {
+        if (edgeFaces.count(edgeKey(e[0], e[1])) == 0) {
           wire.push_back(static_cast<std::uint32_t>(e[0]));
           wire.push_back(static_cast<std::uint32_t>(e[1]));
         }

@@ -312,13 +312,8 @@ Index Simulation::addPositionConstraint(Index vertex, const Vec3& target, const 
     // Resumed from a state whose vertex is not on the way (not one this travel made): the
     // first cycle takes it there.
     const double distance = (now - state_.position.row(vertex).transpose()).norm();
-    double edges = 0.0;
-    for (Index e : model_.mesh.vertexEdges(vertex)) {
-      const auto [a, b] = model_.mesh.edge(e);
-      edges += (model_.mesh.positions().row(a) - model_.mesh.positions().row(b)).norm();
-    }
-    const auto count = model_.mesh.vertexEdges(vertex).size();
-    if (count > 0 && distance > edges / static_cast<double>(count)) {
+    const double edge = model_.mesh.meanEdgeLengthAt(vertex, model_.mesh.positions());
+    if (edge > 0.0 && distance > edge) {
       std::ostringstream msg;
       msg.precision(3);
       msg << "position constraint at vertex " << vertex << ": the travel began at " << travel.start

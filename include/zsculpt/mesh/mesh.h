@@ -84,6 +84,8 @@ class Mesh {
   [[nodiscard]] BoundingBox boundingBox() const;
   /// Mean edge length (0 when there are no edges).
   [[nodiscard]] double meanEdgeLength() const;
+  /// Mean length of v's edges with the vertices at `positions` (0 when v has none).
+  [[nodiscard]] double meanEdgeLengthAt(Index v, const Points& positions) const;
 
  private:
   Points positions_;
