@@ -2181,35 +2181,20 @@ Mesh loadMeshSource(const std::string& source, MeshLoadReport* report, UpAxis up
   return loadMesh(source, report, up);
 }
 
+// The axes by name, in the enum's order: one table both ways.
+constexpr const char* kUpAxisNames[] = {"auto", "x", "-x", "y", "-y", "z", "-z"};
+
 UpAxis parseUpAxis(const std::string& text) {
   std::string t = lowercase(text);
   if (!t.empty() && t[0] == '+') t.erase(0, 1);
-  const std::pair<const char*, UpAxis> names[] = {
-      {"auto", UpAxis::Auto}, {"x", UpAxis::PlusX}, {"-x", UpAxis::MinusX}, {"y", UpAxis::PlusY},
-      {"-y", UpAxis::MinusY}, {"z", UpAxis::PlusZ}, {"-z", UpAxis::MinusZ}};
-  for (const auto& [name, axis] : names)
-    if (t == name) return axis;
+  for (size_t k = 0; k < std::size(kUpAxisNames); ++k)
+    if (t == kUpAxisNames[k]) return static_cast<UpAxis>(k);
   throw InvalidInputError("'" + text + "' is not an axis (auto, x, -x, y, -y, z or -z)");
 }
 
 std::string upAxisName(UpAxis up) {
-  switch (up) {
-    case UpAxis::Auto:
-      return "auto";
-    case UpAxis::PlusX:
-      return "x";
-    case UpAxis::MinusX:
-      return "-x";
-    case UpAxis::PlusY:
-      return "y";
-    case UpAxis::MinusY:
-      return "-y";
-    case UpAxis::PlusZ:
-      return "z";
-    case UpAxis::MinusZ:
-      return "-z";
-  }
-  return "auto";
+  const auto k = static_cast<size_t>(up);
+  return k < std::size(kUpAxisNames) ? kUpAxisNames[k] : "auto";
 }
 
 void turnUpToZ(Points& points, UpAxis up) {
