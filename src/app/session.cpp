@@ -490,7 +490,7 @@ Session::Outcome Session::advance() {
     }
   }
   // An edit's change of the stored energy, measured before the step moves the state.
-  if (guard_->editPending()) guard_->measureEdit(sim_->diagnostics().total());
+  if (guard_->editPending()) guard_->measureEdit(*sim_);
   bool diverged = false;
   std::string reason;
   try {

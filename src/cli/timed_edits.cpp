@@ -6,6 +6,7 @@
 
 #include "console.h"
 #include "zsculpt/core/errors.h"
+#include "zsculpt/simulation/divergence_guard.h"
 
 namespace zsculpt::cli {
 
@@ -19,7 +20,7 @@ void TimedEdits::beforeStep(Simulation& sim) {
   if (schedule.finished()) return;
   // A millionth of a period absorbs the rounding of the accumulated time.
   for (const editing::TimedEdit& edit : schedule.due(sim.time(), 1e-6 * sim.period())) {
-    const double energyBefore = sim.diagnostics().total();
+    const double energyBefore = DivergenceGuard::energyOf(sim, sim.diagnostics());
     editing::EditResult result;
     try {
       result = editor->apply({sim.model().mesh, sim.model().angles, sim.mutableProperties()},
@@ -39,7 +40,7 @@ void TimedEdits::beforeStep(Simulation& sim) {
     }
     ++applied;
     sim.propertiesChanged(result.matrixRows);  // local, even for global edits
-    energyChange += std::abs(sim.diagnostics().total() - energyBefore);
+    energyChange += std::abs(DivergenceGuard::energyOf(sim, sim.diagnostics()) - energyBefore);
     if (verify)
       maxDifference =
           std::max(maxDifference, editing::verifyAgainstRebuild(sim.model(), sim.stepper().system(),

@@ -20,9 +20,16 @@ DivergenceGuard::DivergenceGuard(const Simulation& sim) {
   restart(sim);
 }
 
+double DivergenceGuard::energyOf(const Simulation& sim, const Diagnostics& diagnostics) {
+  const PotentialEnergy& v = diagnostics.potential;
+  const double share = sim.smallestElasticShare();
+  const double springs = v.radial + v.angular;
+  return diagnostics.kinetic + v.gravity + (share == 1.0 ? springs : share * springs);
+}
+
 void DivergenceGuard::restart(const Simulation& sim) {
   const Diagnostics d = sim.diagnostics();
-  start_ = d.total();
+  start_ = energyOf(sim, d);
   inflow_ = 0.0;
   maxKinetic_ = d.kinetic;
   lastEnergy_ = start_;
@@ -39,7 +46,8 @@ void DivergenceGuard::addEnergy(double joules) {
   inflow_ += std::abs(joules);
 }
 
-void DivergenceGuard::measureEdit(double energy) {
+void DivergenceGuard::measureEdit(const Simulation& sim) {
+  const double energy = energyOf(sim, sim.diagnostics());
   if (!std::isfinite(energy)) return;  // the step's check will say so
   inflow_ += std::abs(energy - lastEnergy_);
   lastEnergy_ = energy;
@@ -54,7 +62,7 @@ void DivergenceGuard::beforeStep(const Simulation& sim, std::uint64_t cycle) {
 }
 
 bool DivergenceGuard::afterStep(const Simulation& sim, const Diagnostics& diagnostics) {
-  const double energy = diagnostics.total();
+  const double energy = energyOf(sim, diagnostics);
   if (!std::isfinite(energy)) {
     reason_ = "the energy became non-finite";
     return false;
@@ -79,8 +87,11 @@ bool DivergenceGuard::afterStep(const Simulation& sim, const Diagnostics& diagno
   if (!(energy <= bound)) {
     std::ostringstream msg;
     msg.precision(4);
-    msg << "the energy ran away: " << energy << " J, more than " << kEnergyFactor
-        << " times the start energy " << start_ << " J plus the work put in, " << inflow_
+    msg << "the energy ran away: " << energy << " J";
+    if (sim.smallestElasticShare() < 1.0)
+      msg << " (the kinetic energy plus " << sim.smallestElasticShare() << " times the springs')";
+    msg << ", more than " << kEnergyFactor << " times the start energy " << start_
+        << " J plus the work put in, " << inflow_
         << " J, plus the largest kinetic energy before it";
     reason_ = msg.str();
     return false;

@@ -50,6 +50,7 @@ void Simulation::updateRigidity() {
   sigma_.resize(static_cast<size_t>(n));
   rigidActive_ = false;
   allRigid_ = n > 0;
+  smallestShare_ = 1.0;
   for (Index i = 0; i < n; ++i) {
     // Section 4.3: chi_i = 1 - sigma_i, sigma_i = min(kappa_0 / kappa_i, 1), or the painted
     // rigidity where it is larger; the force splits into sigma_i F_i and chi_i F_i.
@@ -58,6 +59,7 @@ void Simulation::updateRigidity() {
     const double sigma = std::min(1.0 - painted, automatic);
     chi_[static_cast<size_t>(i)] = effectiveRigidity(painted, p.stiffness[i], p.stiffnessCap);
     sigma_[static_cast<size_t>(i)] = sigma;
+    smallestShare_ = std::min(smallestShare_, sigma);
     rigidActive_ = rigidActive_ || sigma < 1.0;
     allRigid_ = allRigid_ && sigma == 0.0;
   }
@@ -770,6 +772,20 @@ void Simulation::finishRigid() {
       gained += mass[i] * deformation_.row(i).transpose();
     const Eigen::RowVector3d mean = (gained / end_.mass).transpose();
     for (Index i = 0; i < deformation_.rows(); ++i) deformation_.row(i) -= mean;
+    // The elastic step's second half kick took the internal forces where its drift ended,
+    // unturned; the rigid body's took them turned by the cycle's rotation R. Counted in the
+    // same (turned) frame the two shares' impulses cancel, so internal forces keep P
+    // whatever chi is: the body gets (T / 2)(R - I) sum sigma_i f_i more (zero when chi is
+    // uniform, as then sum sigma_i f_i = 0). Gravity's share is the same in both frames.
+    Vec3 turnedShare = Vec3::Zero();
+    double sigmaMass = 0.0;
+    for (Index i = 0; i < baseForce_.rows(); ++i) {
+      const double s = sigma_[static_cast<size_t>(i)];
+      turnedShare += s * baseForce_.row(i).transpose();
+      sigmaMass += s * mass[i];
+    }
+    turnedShare -= sigmaMass * model_.properties.gravity;
+    gained += (0.5 * t) * (turnedShare - drift_.rotation.transpose() * turnedShare);
     if (settings_.rigidFrame == RigidFrame::Body)
       for (Index i = 0; i < deformation_.rows(); ++i)
         deformation_.row(i) = (drift_.rotation * deformation_.row(i).transpose()).transpose();

@@ -34,6 +34,13 @@ class DivergenceGuard {
   /// Starts from the simulation's present state and energy.
   explicit DivergenceGuard(const Simulation& sim);
 
+  /// The energy the guard watches: the kinetic and gravitational energy plus the smallest
+  /// elastic share sigma_min times the springs' (Simulation::smallestElasticShare). Without
+  /// rigidity that is the total energy. With it, the deformation keeps K + sigma V, not
+  /// K + V: a stiffness-capped model (sigma = kappa_0 / kappa) moving stably shows a total
+  /// up to 1 / sigma times its start, which is not a blow-up (a blow-up outgrows both).
+  [[nodiscard]] static double energyOf(const Simulation& sim, const Diagnostics& diagnostics);
+
   /// The present state and energy become the new start, and both checkpoints: after a
   /// reset, a state loaded or a model replaced.
   void restart(const Simulation& sim);
@@ -47,8 +54,9 @@ class DivergenceGuard {
   /// alone), or else, at the next check, the change since the last one.
   void editChangedEnergy() { editPending_ = true; }
   [[nodiscard]] bool editPending() const { return editPending_; }
-  /// The energy now, after the edits and before the step: the edits' change is counted.
-  void measureEdit(double energy);
+  /// The energy now (energyOf), after the edits and before the step: the edits' change is
+  /// counted.
+  void measureEdit(const Simulation& sim);
   /// Energy put in by an edit whose change was measured (the command line's timed edits).
   void addEnergy(double joules);
 
