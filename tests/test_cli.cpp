@@ -96,6 +96,36 @@ TEST_F(Cli, InfoJsonHasTheContractFields) {
   EXPECT_NEAR(j["t_max_tight"].get<double>(), std::sqrt(12.0 / 52.360679774997898), 1e-9);
 }
 
+TEST_F(Cli, JsonSummariesParseWhateverTheFileNamesHold) {
+  // A quote, a backslash and a tab in a file name are escaped in every JSON summary.
+  const std::string name = "q\"uo\\te\tname";
+  {
+    std::ofstream obj(path(name + ".obj"));
+    obj << "v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nf 1 2 3 4\n";
+  }
+  auto quoted = [](const std::string& p) {  // for the shell: single quotes keep the rest
+    return "'" + p + "'";
+  };
+  const Result info = run("info " + quoted(path(name + ".obj")) + " --json");
+  ASSERT_EQ(info.status, 0) << info.err;
+  nlohmann::json j;
+  ASSERT_NO_THROW(j = nlohmann::json::parse(info.out)) << info.out;
+  EXPECT_EQ(j["source"], path(name + ".obj"));
+  const Result render = run("render " + quoted(path(name + ".obj")) +
+                            " --perturb 0.1 --steps 1 --size 64x64 --no-progress --out " +
+                            quoted(path(name)) + " --json");
+  ASSERT_EQ(render.status, 0) << render.err;
+  ASSERT_NO_THROW(j = nlohmann::json::parse(render.out)) << render.out;
+  EXPECT_EQ(j["diagnostics"], (fs::path(path(name)) / "diagnostics.csv").string());
+  ASSERT_FALSE(j["frames"].empty());
+  EXPECT_TRUE(fs::exists(j["frames"][0].get<std::string>()));
+  const Result bench =
+      run("bench " + quoted(path(name + ".obj")) + " --steps 2 --threads 1 --json");
+  ASSERT_EQ(bench.status, 0) << bench.err;
+  ASSERT_NO_THROW(j = nlohmann::json::parse(bench.out)) << bench.out;
+  EXPECT_EQ(j["model"]["model"], path(name + ".obj"));
+}
+
 TEST_F(Cli, InfoOfTheFinsReportsTheNonManifoldEdge) {
   const auto j = nlohmann::json::parse(run("info builtin:fins --json").out);
   EXPECT_EQ(j["non_manifold_edges"], 1);

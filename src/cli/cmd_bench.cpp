@@ -272,7 +272,7 @@ std::string num(double v) {
 
 std::string modelJson(const ModelBench& b, const std::string& indent) {
   std::ostringstream o;
-  o << indent << "{\"model\": \"" << b.name << "\", \"vertices\": " << b.vertices
+  o << indent << "{\"model\": " << jsonString(b.name) << ", \"vertices\": " << b.vertices
     << ", \"edges\": " << b.edges << ", \"angle_springs\": " << b.angles << ", \"scheme\": \""
     << b.scheme << "\", \"threads\": " << b.threads << ", \"dt\": " << num(b.period)
     << ", \"precompute_seconds\": " << num(b.precompute)
@@ -351,7 +351,7 @@ std::string runTable1(const Options& o) {
     // The paper's Init: Omega^2, Omega^4, H, H', H'' (section 6), i.e. both matrix sets.
     const double init = paper.systemMatrices + paper.transformation;
     if (o.json) {
-      json << "    {\"model\": \"" << row.name << "\", \"vertices\": " << paper.vertices
+      json << "    {\"model\": " << jsonString(row.name) << ", \"vertices\": " << paper.vertices
            << ", \"edges\": " << paper.edges << ", \"init_seconds\": " << num(init)
            << ", \"paper_init_seconds\": " << num(row.init)
            << ", \"init_ratio\": " << num(row.init / init)
@@ -473,8 +473,8 @@ std::string runRoofline(const Options& o) {
   json << "  \"roofline\": {\"triad_bytes_per_second\": " << num(triad)
        << ", \"triad_bytes_per_second_one_thread\": " << num(triadOne)
        << ", \"triad_array_bytes\": " << num(8.0 * static_cast<double>(elements))
-       << ", \"threads\": " << threads << ", \"model\": \"" << b.name
-       << "\", \"vertices\": " << b.vertices << ", \"step_seconds\": " << num(b.step)
+       << ", \"threads\": " << threads << ", \"model\": " << jsonString(b.name)
+       << ", \"vertices\": " << b.vertices << ", \"step_seconds\": " << num(b.step)
        << ", \"step_bytes\": " << num(b.bytesPerStep)
        << ", \"step_bytes_per_second\": " << num(effective)
        << ", \"fraction_of_triad\": " << num(effective / triad) << "}";
@@ -718,7 +718,7 @@ std::string runPeers(const Options& o) {
   json << "  \"peers\": [\n";
   for (size_t k = 0; k < all.size(); ++k) {
     const PeerResult& r = all[k];
-    json << "    {\"model\": \"" << r.model << "\", \"vertices\": " << r.vertices
+    json << "    {\"model\": " << jsonString(r.model) << ", \"vertices\": " << r.vertices
          << ", \"scheme\": \"" << r.scheme << "\", \"dt\": " << num(r.dt)
          << ", \"dt_over_t_max\": " << num(r.dt / r.tMax)
          << ", \"stable_limit\": " << num(r.stableLimit) << ", \"steps\": " << r.steps

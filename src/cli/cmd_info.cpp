@@ -32,7 +32,7 @@ int runInfo(const ModelOptions& options, bool json) {
   const PhysicalProperties& p = model.properties;
   if (json) {
     std::cout << "{\n"
-              << "  \"source\": \"" << loaded.source << "\",\n"
+              << "  \"source\": " << jsonString(loaded.source) << ",\n"
               << "  \"vertices\": " << mesh.numVertices() << ",\n"
               << "  \"edges\": " << mesh.numEdges() << ",\n"
               << "  \"faces\": " << mesh.numFaces() << ",\n"

@@ -7,6 +7,7 @@
 #include <initializer_list>
 #include <optional>
 #include <string>
+#include <string_view>
 #include <vector>
 
 #include "zsculpt/io/mesh_io.h"
@@ -105,5 +106,8 @@ Scheme schemeOption(const std::string& name);
 
 /// A JSON number that stays valid JSON for infinities (as null).
 std::string jsonNumber(double value);
+/// A JSON string, quotes included: quotes, backslashes and control characters escaped, so a
+/// file name holding any of them still gives a summary that parses.
+std::string jsonString(std::string_view text);
 
 }  // namespace zsculpt::cli

@@ -379,13 +379,13 @@ int reportRenderJob(const RenderJobOptions& o, const RenderJobResult& r,
   if (o.run.json) {
     std::cout << "{\n  \"frames\": [";
     for (size_t i = 0; i < r.frames.size(); ++i)
-      std::cout << (i ? ", " : "") << '"' << r.frames[i] << '"';
+      std::cout << (i ? ", " : "") << jsonString(r.frames[i]);
     std::cout << "],\n  \"frame_times\": [";
     for (size_t i = 0; i < r.frameTimes.size(); ++i)
       std::cout << (i ? ", " : "") << jsonNumber(r.frameTimes[i]);
     std::cout << "],\n"
-              << "  \"diagnostics\": \"" << r.diagnostics << "\",\n"
-              << "  \"plot\": \"" << r.plot << "\",\n"
+              << "  \"diagnostics\": " << jsonString(r.diagnostics) << ",\n"
+              << "  \"plot\": " << jsonString(r.plot) << ",\n"
               << "  \"width\": " << r.width << ",\n"
               << "  \"height\": " << r.height << ",\n"
               << "  \"levels\": " << r.levels << ",\n"
