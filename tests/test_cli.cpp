@@ -126,6 +126,41 @@ TEST_F(Cli, JsonSummariesParseWhateverTheFileNamesHold) {
   EXPECT_EQ(j["model"]["model"], path(name + ".obj"));
 }
 
+TEST_F(Cli, AnOutputNamingOneOfTheRunsInputsIsRefusedAndTheInputKept) {
+  const std::string mesh = "v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nf 1 2 3 4\n";
+  const std::string scene = "{\"version\": 1, \"mesh\": \"quad.obj\"}";
+  {
+    std::ofstream(path("quad.obj")) << mesh;
+    std::ofstream(path("scene.json")) << scene;
+  }
+  ASSERT_EQ(
+      run("simulate builtin:torus --perturb 0.1 --steps 2 --state-out " + path("s.csv")).status, 0);
+  const std::string state = slurp(path("s.csv"));
+  const std::string quad = path("quad.obj"), json = path("scene.json"), csv = path("s.csv");
+  expectOneLineError(run("simulate " + quad + " --steps 2 --csv " + quad), 2,
+                     "--csv: " + quad + " is the model's file");
+  expectOneLineError(run("simulate " + json + " --steps 2 --state-out " + json), 2,
+                     "--state-out: " + json + " is the model's file");
+  expectOneLineError(run("simulate " + json + " --steps 2 --csv " + quad), 2,
+                     "--csv: " + quad + " is the scene's mesh");
+  expectOneLineError(run("simulate builtin:torus --steps 2 --state-in " + csv + " --csv " + csv), 2,
+                     "--csv: " + csv + " is --state-in's file");
+  expectOneLineError(run("subdivide " + quad + " --out " + quad), 2,
+                     "--out: " + quad + " is the model's file");
+  expectOneLineError(run("render " + quad + " --steps 1 --size 64x64 --out " + path("frames") +
+                         " --state-out " + quad),
+                     2, "--state-out: " + quad + " is the model's file");
+  EXPECT_FALSE(fs::exists(path("frames")));
+  EXPECT_EQ(slurp(quad), mesh);
+  EXPECT_EQ(slurp(json), scene);
+  EXPECT_EQ(slurp(csv), state);
+  // A state carried on in place is not refused.
+  const Result inPlace =
+      run("simulate builtin:torus --steps 2 --state-in " + csv + " --state-out " + csv);
+  EXPECT_EQ(inPlace.status, 0) << inPlace.err;
+  EXPECT_NE(slurp(csv), state);
+}
+
 TEST_F(Cli, InfoOfTheFinsReportsTheNonManifoldEdge) {
   const auto j = nlohmann::json::parse(run("info builtin:fins --json").out);
   EXPECT_EQ(j["non_manifold_edges"], 1);

@@ -34,6 +34,8 @@ app::SessionSetup makeSetup(const OpenOptions& o) {
   ModelOptions model = o.model;
   if (model.source.empty()) model.source = app::defaultScenePath();
   const LoadedModel loaded = model.load();
+  checkOutputsSpareInputs({{"--record", &o.window.recordPath}, {"--state-out", &o.window.stateOut}},
+                          loaded, o.stateIn);
   io::SceneDescription scene;
   if (loaded.scene) {
     scene = *loaded.scene;

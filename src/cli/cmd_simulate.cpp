@@ -38,6 +38,8 @@ int runSimulate(const SimulateOptions& options) {
   for (const std::string* path : {&options.run.csv, &options.run.stateOut})
     if (!path->empty()) io::checkOutputFile(*path);
   checkDistinctOutputs({{"--csv", &options.run.csv}, {"--state-out", &options.run.stateOut}});
+  checkOutputsSpareInputs({{"--csv", &options.run.csv}, {"--state-out", &options.run.stateOut}},
+                          loaded, options.run.stateIn);
 
   const long steps = resolved.steps;
   const long window = std::max(1L, steps / 10);

@@ -28,6 +28,7 @@ int runSubdivide(const SubdivideOptions& options) {
   checkLevelsRange(options.levels);
   io::checkMeshOutput(options.out);  // before the work, not after it
   const LoadedModel loaded = options.model.load();
+  checkOutputsSpareInputs({{"--out", &options.out}}, loaded);
   SubdivisionOptions sub;
   sub.levels = options.levels;
   sub.interpolate = !options.classic;

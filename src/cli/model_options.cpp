@@ -168,6 +168,35 @@ void checkDistinctOutputs(
   }
 }
 
+void checkOutputsSpareInputs(
+    std::initializer_list<std::pair<const char*, const std::string*>> outputs,
+    const LoadedModel& loaded, const std::string& stateIn) {
+  namespace fs = std::filesystem;
+  // Only existing regular files can be overwritten: built-ins, devices and pipes cannot.
+  auto fileOf = [](const std::string& path) -> std::optional<fs::path> {
+    std::error_code ec;
+    if (path.empty() || !fs::is_regular_file(path, ec)) return std::nullopt;
+    return fs::weakly_canonical(fs::absolute(path, ec), ec);
+  };
+  std::vector<std::pair<std::string, fs::path>> inputs;
+  if (const auto model = fileOf(loaded.source)) inputs.emplace_back("the model's file", *model);
+  if (loaded.scene)
+    if (const auto mesh = fileOf(loaded.scene->mesh))
+      inputs.emplace_back("the scene's mesh", *mesh);
+  const std::optional<fs::path> state = fileOf(stateIn);
+  if (state) inputs.emplace_back("--state-in's file", *state);
+  for (const auto& [flag, path] : outputs) {
+    const std::optional<fs::path> file = fileOf(*path);
+    if (!file) continue;
+    for (const auto& [what, input] : inputs) {
+      if (input != *file) continue;
+      if (state && input == *state && std::string_view(flag) == "--state-out") continue;
+      throw InvalidInputError(std::string(flag) + ": " + *path + " is " + what +
+                              " and would be overwritten");
+    }
+  }
+}
+
 void warnAboutOtherFrames(const std::string& dir, std::size_t written) {
   namespace fs = std::filesystem;
   std::error_code ec;

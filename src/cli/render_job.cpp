@@ -153,6 +153,8 @@ RenderJobResult runRenderJob(const RenderJobOptions& o) {
   renderer.checkSize(result.width, result.height, "--size");
 
   const LoadedModel loaded = o.model.load();
+  checkOutputsSpareInputs({{"--csv", &o.run.csv}, {"--state-out", &o.run.stateOut}}, loaded,
+                          o.run.stateIn);
   RunOptions::Resolved resolved = o.run.resolve(loaded);
   const bool explicitLength =
       o.run.steps || o.run.time ||
