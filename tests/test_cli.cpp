@@ -76,7 +76,11 @@ TEST_F(Cli, EverySubcommandHasHelp) {
     const Result r = run(std::string(sub) + " --help");
     EXPECT_EQ(r.status, 0) << sub;
     EXPECT_NE(r.out.find("Usage"), std::string::npos) << sub;
+    EXPECT_EQ(r.out.find('{'), std::string::npos) << sub << ": a parser's leftover\n" << r.out;
   }
+  const Result version = run("--version");
+  EXPECT_EQ(version.status, 0);
+  EXPECT_EQ(version.out.rfind("zsculpt 0.", 0), 0u) << version.out;
 }
 
 TEST_F(Cli, InfoJsonHasTheContractFields) {
@@ -159,6 +163,18 @@ TEST_F(Cli, AnOutputNamingOneOfTheRunsInputsIsRefusedAndTheInputKept) {
       run("simulate builtin:torus --steps 2 --state-in " + csv + " --state-out " + csv);
   EXPECT_EQ(inPlace.status, 0) << inPlace.err;
   EXPECT_NE(slurp(csv), state);
+}
+
+TEST_F(Cli, AStepRatioWithNothingStiffIsWarnedOfAndTheStepNamed) {
+  // Without stiffness T_max is infinite: a ratio of it names no period. The run goes on at
+  // 10 ms and says so, instead of printing "(0 T_max)".
+  const Result r =
+      run("simulate builtin:torus --stiffness 0 --perturb 0.1 --dt-ratio 0.5 --steps 3");
+  ASSERT_EQ(r.status, 0) << r.err;
+  EXPECT_NE(r.err.find("--dt-ratio: T_max is infinite"), std::string::npos) << r.err;
+  EXPECT_NE(r.out.find("dt 0.01 s (T_max infinite)"), std::string::npos) << r.out;
+  const Result quiet = run("simulate builtin:torus --stiffness 0 --perturb 0.1 --steps 3");
+  EXPECT_EQ(quiet.err, "");
 }
 
 TEST_F(Cli, InfoOfTheFinsReportsTheNonManifoldEdge) {
@@ -1029,12 +1045,12 @@ TEST_F(Cli, ARefusedRunMakesNoFolderAndNamesTheFlagAtFault) {
   // A run of a model at rest has no relative energy drift: said so, not "-nan".
   const Result still = run("simulate builtin:dodecahedron --steps 2");
   EXPECT_EQ(still.status, 0);
-  EXPECT_NE(still.out.find("(drift undefined)"), std::string::npos) << still.out;
+  EXPECT_NE(still.out.find("(drift undefined:"), std::string::npos) << still.out;
   // Nor has one whose angle springs hold it at rest only to rounding (1e-28 J): its "drift"
   // was 25, a ratio of noise.
   const Result noise = run("simulate builtin:torus --angular-stiffness 0.5 --steps 50");
   EXPECT_EQ(noise.status, 0);
-  EXPECT_NE(noise.out.find("(drift undefined)"), std::string::npos) << noise.out;
+  EXPECT_NE(noise.out.find("(drift undefined:"), std::string::npos) << noise.out;
   // A load's work and impulse are a change, not the scheme's drift: said so, with the
   // momentum's sources (a 1 N load for 4.47 s was "momentum drift 4.47").
   const Result loaded = run("simulate builtin:dodecahedron --steps 20 --force 3:0,0,1");

@@ -60,6 +60,7 @@ std::string oneLine(std::string text) {
 int run(int argc, char** argv) {
   CLI::App app{"zsculpt: physics-based sculpting with the z-domain solver of Ray and Qin"};
   app.require_subcommand(0, 1);
+  app.set_version_flag("--version", std::string("zsculpt ") + ZSCULPT_VERSION);
   CommandList commands;
   addInfoCommand(app, commands);
   addSimulateCommand(app, commands);

@@ -21,7 +21,8 @@ void addDemoCommand(CLI::App& root, CommandList& commands) {
   app->add_option("--size", o->size, "image size WxH (default 1280x720)");
   app->add_option("--property", o->property, "colour the surface by a property (default: none)");
   app->add_flag("--json", o->run.json, "a JSON summary on standard output");
-  app->add_flag("!--no-progress", o->progress, "no progress bar on standard error");
+  app->add_flag_callback(
+      "--no-progress", [o] { o->progress = false; }, "no progress bar on standard error");
   commands.push_back({app, [o]() {
                         RenderJobOptions job = *o;
                         job.model.source = app::defaultScenePath();

@@ -35,7 +35,8 @@ void addRenderCommand(CLI::App& root, CommandList& commands) {
                   "subdivide (default: 2 to 5, by the image size)");
   app->add_flag("--classic", o->classic,
                 "draw classic Doo-Sabin (CGAL's masks), which does not interpolate the mesh");
-  app->add_flag("!--no-progress", o->progress, "no progress bar on standard error");
+  app->add_flag_callback(
+      "--no-progress", [o] { o->progress = false; }, "no progress bar on standard error");
   commands.push_back({app, [o]() {
                         const RenderJobResult r = runRenderJob(*o);
                         return reportRenderJob(*o, r, o->model.source);

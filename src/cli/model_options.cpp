@@ -119,9 +119,14 @@ void RunOptions::addTo(CLI::App* app) {
                   "repeatable)");
   app->add_flag("--allow-unstable", allowUnstable,
                 "run even above the scheme's stable limit (to watch it diverge)");
-  app->add_flag("--drift-filter,!--no-drift-filter", driftFilter,
-                "default scheme on braced models: filter the drift too (on unless "
-                "--no-drift-filter; docs/solver.md, section 6)");
+  // Two callbacks, not CLI11's "!" negation, whose help shows "{false}" after the names.
+  app->add_flag_callback(
+      "--drift-filter", [this] { driftFilter = true; },
+      "default scheme on braced models: filter the drift too (the default; "
+      "docs/solver.md, section 6)");
+  app->add_flag_callback(
+      "--no-drift-filter", [this] { driftFilter = false; },
+      "default scheme: the kick filter alone");
   app->add_option("--substep-strain", substepStrain,
                   "default scheme: split a cycle into 2, 4, ... steps when an edge would change "
                   "its length by more than this fraction of its rest length in one (default "
@@ -308,6 +313,10 @@ RunOptions::Resolved RunOptions::resolve(const LoadedModel& loaded) const {
           ": the time step it gives is not a finite number of seconds");
     // No stiffness at all (a free particle cloud): any step is stable; pick 10 ms.
     period = 0.01;
+    if (dtRatio || (fromScene && fromScene->dtRatio))
+      warn(std::string(dtRatio ? "--dt-ratio" : loaded.source + ": /simulation/dt_ratio") +
+           ": T_max is infinite (nothing stiff), so there is no period to take a share of; "
+           "the step is 0.01 s (--dt sets it)");
   }
   if (!(r.tMax > 0.0) && !dt)
     // The ratio is fine; the properties give no period to take it of (equation 5: T_max
@@ -500,6 +509,13 @@ std::string jsonNumber(double value) {
   std::ostringstream out;
   out.precision(17);
   out << value;
+  return out.str();
+}
+
+std::string shareOfTMax(double period, double tMax) {
+  if (!std::isfinite(tMax)) return "T_max infinite";
+  std::ostringstream out;
+  out << period / tMax << " T_max";
   return out.str();
 }
 

@@ -111,6 +111,9 @@ Property propertyOption(const std::string& name);
 /// The scheme --scheme NAME names; an unknown one is an error naming the flag.
 Scheme schemeOption(const std::string& name);
 
+/// "0.5 T_max", the period as a share of T_max; "T_max infinite" when nothing is stiff.
+std::string shareOfTMax(double period, double tMax);
+
 /// A JSON number that stays valid JSON for infinities (as null).
 std::string jsonNumber(double value);
 /// A JSON string, quotes included: quotes, backslashes and control characters escaped, so a

@@ -411,8 +411,8 @@ int reportRenderJob(const RenderJobOptions& o, const RenderJobResult& r,
     std::cout << "simulated " << static_cast<double>(r.stepsTaken) * r.period << " s in "
               << r.stepsTaken;
     if (r.stepsTaken != r.steps) std::cout << " of " << r.steps;
-    std::cout << " steps of " << r.period << " s (" << r.period / r.tMax << " T_max); wall time "
-              << r.wallSeconds << " s\n";
+    std::cout << " steps of " << r.period << " s (" << shareOfTMax(r.period, r.tMax)
+              << "); wall time " << r.wallSeconds << " s\n";
   }
   if (r.diverged) {
     std::cerr << "zsculpt: error: " << source << ": the simulation diverged at step "
