@@ -235,7 +235,12 @@ void ConstraintSolver::beginStep(const Mesh& mesh, const ConstraintSet& constrai
     plane.held = current.squaredNorm() > 0.0 && planeFlatness(points_) <= kMaxPlaneFlatness;
     plane.yielded = false;
     if (!plane.held) {
-      plane.turn.lastOff = -1.0;  // the way back from a fold is not lost (kTurnBudget)
+      TurnRecord& turn = plane.turn;
+      if (turn.lastOff >= 0.0 && turn.arrived) {  // held at its target, and folded there
+        ++turn.foldsAfterArriving;
+        turn.arrived = false;
+      }
+      turn.lastOff = -1.0;  // the way back from a fold is not lost (kTurnBudget)
       for (auto& g : plane.gradient) g.setZero();
       lambda_[q].setZero();
       releasedVertices_.push_back(vertex);
@@ -262,8 +267,11 @@ void ConstraintSolver::beginStep(const Mesh& mesh, const ConstraintSet& constrai
     if (!turn.stopped) {
       if (turn.lastOff >= 0.0) turn.lost += std::max(0.0, fromTarget - turn.lastOff);
       turn.lastOff = fromTarget;
-      if (fromTarget <= maxTurn) turn.lost = 0.0;  // arrived
-      if (turn.lost > kTurnBudget) {
+      if (fromTarget <= maxTurn) {  // arrived
+        turn.lost = 0.0;
+        turn.arrived = true;
+      }
+      if (turn.lost > kTurnBudget || turn.foldsAfterArriving > kFoldBudget) {
         turn.stopped = true;  // the budget is spent: hold the normal where it is
         turn.kept = from;
         newlyStopped_.push_back({vertex, fromTarget});

@@ -153,6 +153,16 @@ class ConstraintSolver {
   /// counted: a braced ring dragged hard folds many times before it settles, then arrives. A
   /// stopped constraint holds the normal where it is until its target is set to another value.
   static constexpr double kTurnBudget = std::numbers::pi;
+  /// The most times a ring may fold (be let go, kMaxPlaneFlatness) after it arrived at its
+  /// target before the constraint stops turning it, as for kTurnBudget. The way back after a
+  /// fold is not counted as lost, so a ring that cannot be held where it arrived (it folds
+  /// there) was turned back after every fold, and every turn does work: a braced torus whose
+  /// normal was asked to turn 1 rad folded 17 times in 1000 cycles, 12 of them after arriving,
+  /// and its energy went from 0.0125 J to 2.7 J in 300 cycles and 32.8 J in 9000. A ring
+  /// folded by a drag folds in a burst on its way, without arriving between the folds, and
+  /// then arrives and stays (Constraints.AFoldingRingIsLetGoInsteadOfTornApart: 16 folds, 2
+  /// after arriving).
+  static constexpr int kFoldBudget = 4;
   /// The vertices of the normal constraints let go this cycle.
   [[nodiscard]] std::span<const Index> releasedVertices() const { return releasedVertices_; }
   /// Lets go, for the rest of the cycle, every normal held in it, and returns how many: the
@@ -219,6 +229,8 @@ class ConstraintSolver {
     Vec3 target = Vec3::Zero();  // the target it is for (a new one starts a new record)
     double lastOff = -1.0;       // its angle from the normal at the last cycle's start, if held
     double lost = 0.0;           // radians the ring lost of its way since it last arrived
+    bool arrived = false;        // it arrived since it last folded
+    int foldsAfterArriving = 0;  // folds that came after an arrival (kFoldBudget)
     bool stopped = false;        // the budget is spent: hold `kept`
     Vec3 kept = Vec3::UnitZ();
   };
