@@ -241,7 +241,8 @@ int reproduceFigure8(const ReproduceOptions& options) {
   std::cout << "} (" << redEdges << " edges), rest angles x0.8 at the blue point 1 (" << blueAngles
             << " angles)\n"
             << "  matrix rows updated by the edits: " << redRows + blueRows
-            << " (rest values never reach K); T_max " << tMax << " -> " << tMaxAfter << " s\n"
+            << " (a rest length enters K only where shorter than as loaded); T_max " << tMax
+            << " -> " << tMaxAfter << " s\n"
             << "  energy stored by the edits at the rest shape: " << storedEnergy << " J\n"
             << "  " << (settledAt >= 0.0 ? "at rest after " : "not at rest after ")
             << (settledAt >= 0.0 ? settledAt : sim.time()) << " s (" << step

@@ -12,9 +12,9 @@ bool propertyChangesMatrices(Property property) {
     case Property::Damping:
     case Property::Stiffness:
     case Property::AngularStiffness:
+    case Property::RestLength:  // the angle springs' bound (matrixEdgeStiffness)
       return true;
     case Property::Rigidity:
-    case Property::RestLength:
     case Property::RestAngle:
       return false;
   }
@@ -35,8 +35,14 @@ void appendAffectedRows(const Mesh& mesh, Property property, std::span<const Ind
         for (Index j : mesh.vertexNeighbors(v)) rows.push_back(j);
       }
       break;
+    case Property::RestLength:  // an edge's entry: its two rows
+      for (Index e : elements) {
+        const auto [i, j] = mesh.edge(e);
+        rows.push_back(i);
+        rows.push_back(j);
+      }
+      break;
     case Property::Rigidity:
-    case Property::RestLength:
     case Property::RestAngle:
       break;
   }

@@ -63,8 +63,14 @@ double matrixEdgeStiffness(const Model& model, Index edge) {
   const PhysicalProperties& p = model.properties;
   double kappa = edgeStiffness(cappedStiffness(p.stiffness[i], p.stiffnessCap),
                                cappedStiffness(p.stiffness[j], p.stiffnessCap));
+  // The angle springs' bound 2 kappa_theta / l^2 grows as the arm shortens. The model rests
+  // at its rest lengths, not at the lengths it was loaded with: where a rest length is the
+  // shorter (--rest-length-scale 0.5, a painted rest length), the loaded length understated
+  // the stiffness and T_max (a grid at half its rest lengths: Hessian 1183 against 1040).
   const auto& x = model.mesh.positions();
-  const double length2 = (x.row(i) - x.row(j)).squaredNorm();
+  const double loaded2 = (x.row(i) - x.row(j)).squaredNorm();
+  const double rest = model.properties.restLength[edge];
+  const double length2 = rest > 0.0 ? std::min(loaded2, rest * rest) : loaded2;
   for (Index angle : model.angles.edgeAngles.row(edge)) {
     const Index centre = model.angles.angles[angle][0];
     kappa += 2.0 * p.angularStiffness[centre] / length2;

@@ -10,7 +10,7 @@
 //   Stepper:     stepper.propertiesChanged(result.matrixRows)
 //   matrices:    LocalMatrices::update(model, result.matrixRows)
 //
-// after every edit that changed something, even when matrixRows is empty (a rest-length
+// after every edit that changed something, even when matrixRows is empty (a rest-angle
 // edit changes no matrix but does change the forces a stepper may have cached).
 //
 // Undo and redo: each edit stores the old and new values of exactly the entries it

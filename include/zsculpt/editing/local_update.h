@@ -11,8 +11,9 @@
 //                      changes for every edge at v, i.e. K_vj, K_jv, K_vv and K_jj
 //   angular kappa_th_v v and its one-ring: the angle springs centred at v add
 //                      2 kappa_theta_v / d^2 to each edge at v (matrices.h)
-//   rigidity, rest_length, rest_angle   no row: the matrices see neither (they enter
-//                      the forces only; K uses lengths as loaded)
+//   rest_length l_e    rows i and j of edge e = (i, j): the angle springs' bound on e
+//                      uses the shorter of the loaded and the rest length (matrices.h)
+//   rigidity, rest_angle   no row: the matrices see neither (they enter the forces only)
 //
 // SystemMatrices::updateVertices recomputes those rows, O(k) each. Row i of Omega^4, H,
 // H', H'', X, X' depends on Omega^2's rows i and j for j in the one-ring of i (Omega^4 =
@@ -31,7 +32,7 @@
 
 namespace zsculpt::editing {
 
-/// True for mass, damping, stiffness and angular stiffness.
+/// True for mass, damping, stiffness, angular stiffness and rest length.
 bool propertyChangesMatrices(Property property);
 
 /// Appends (unsorted, possibly repeated) the rows whose values depend on `property` at

@@ -50,7 +50,8 @@ inline double truncatedH(double t, double delta, double omega2, double omega4) {
 }
 
 /// Stiffness of edge e as the matrices see it: the radial kappa_ij of the capped vertex
-/// stiffnesses plus the angle-spring bound of every angle that uses e as an arm.
+/// stiffnesses plus the angle-spring bound 2 kappa_theta / l^2 of every angle that uses e as
+/// an arm, l the shorter of e's loaded and rest length.
 double matrixEdgeStiffness(const Model& model, Index edge);
 
 /// M, D, K, Omega^2, G for a model.
