@@ -177,6 +177,27 @@ TEST_F(Cli, AStepRatioWithNothingStiffIsWarnedOfAndTheStepNamed) {
   EXPECT_EQ(quiet.err, "");
 }
 
+TEST_F(Cli, ValuesTooLargeAndAScenesMissingMeshAreSaidOfWhatGaveThem) {
+  expectOneLineError(run("simulate builtin:torus --perturb 1e308 --steps 3"), 2,
+                     "--perturb: 1e+308 m/s gives velocities too large to represent");
+  expectOneLineError(run("info builtin:torus --rest-length-scale 1e308"), 2,
+                     "--rest-length-scale: 1e+308 makes rest lengths too large");
+  {
+    std::ofstream(path("big.json"))
+        << R"({"version": 1, "mesh": "builtin:torus", "simulation": {"perturb": 1e308}})";
+    std::ofstream(path("lost.json")) << R"({"version": 1, "mesh": "nowhere.obj"})";
+  }
+  expectOneLineError(run("simulate " + path("big.json") + " --steps 2"), 2,
+                     path("big.json") + ": /simulation/perturb: 1e+308");
+  expectOneLineError(run("info " + path("lost.json")), 2,
+                     path("lost.json") + ": /mesh: " + path("nowhere.obj") + ": no such file");
+  // An STL holds triangles: the count written is said beside the surface's faces.
+  const Result stl = run("subdivide builtin:dodecahedron --levels 3 --out " + path("d.stl"));
+  ASSERT_EQ(stl.status, 0) << stl.err;
+  EXPECT_NE(stl.out.find("962 faces (1916 triangles in the STL file)"), std::string::npos)
+      << stl.out;
+}
+
 TEST_F(Cli, InfoOfTheFinsReportsTheNonManifoldEdge) {
   const auto j = nlohmann::json::parse(run("info builtin:fins --json").out);
   EXPECT_EQ(j["non_manifold_edges"], 1);
@@ -1017,11 +1038,13 @@ TEST_F(Cli, ARefusedRunMakesNoFolderAndNamesTheFlagAtFault) {
                            " --out " + path("replayed")),
                        2, "--every: must be at least 1");
   EXPECT_FALSE(fs::exists(path("replayed")));
-  EXPECT_EQ(
-      run("replay " + path("session.jsonl") + " --no-frames --every 2 --out " + path("replayed"))
-          .status,
-      0);
+  const Result replayed =
+      run("replay " + path("session.jsonl") + " --no-frames --every 2 --out " + path("replayed"));
+  EXPECT_EQ(replayed.status, 0) << replayed.err;
   EXPECT_TRUE(fs::exists(path("replayed/final_state.csv")));
+  // Without a footer there is no hash to check: said, not left for a reader to assume.
+  EXPECT_NE(replayed.out.find("not compared (the recording has no footer"), std::string::npos)
+      << replayed.out;
   // A load on a vertex the model lacks is said of its flag.
   expectOneLineError(run("simulate builtin:dodecahedron --steps 2 --force 20:1,0,0"), 2,
                      "--force 20:1,0,0: force at vertex 20: no such vertex (the model has 20)");

@@ -92,6 +92,9 @@ int runReplay(const ReplayOptions& o) {
     if (r.matchesRecording)
       std::cout << (*r.matchesRecording ? ": bit-identical to the recorded session"
                                         : ": DIFFERS from the recorded session");
+    else
+      std::cout << ": not compared (the recording has no footer with a final hash: a script, or "
+                   "a session that did not end cleanly)";
     std::cout << "\n";
     if (r.framesWritten > 0) std::cout << r.framesWritten << " frames in " << o.out << "\n";
   }

@@ -1,6 +1,7 @@
 // zsculpt subdivide MESH|SCENE --levels L --out FILE: the smooth surface of the modified
 // Doo-Sabin scheme (paper section 3), written in any format assimp exports.
 
+#include <filesystem>
 #include <iostream>
 #include <new>
 #include <utility>
@@ -50,9 +51,18 @@ int runSubdivide(const SubdivideOptions& options) {
               << "  \"bbox_diagonal\": " << jsonNumber(control.boundingBox().diagonal()) << "\n"
               << "}\n";
   } else {
+    // STL holds triangles only: the file's count, said beside the surface's own.
+    std::string triangles;
+    if (std::filesystem::path(options.out).extension() == ".stl" ||
+        std::filesystem::path(options.out).extension() == ".STL") {
+      Index count = 0;
+      for (Index f = 0; f < result.numFaces(); ++f)
+        count += static_cast<Index>(result.face(f).size()) - 2;
+      triangles = " (" + std::to_string(count) + " triangles in the STL file)";
+    }
     std::cout << "wrote " << options.out << ": " << result.numVertices() << " vertices, "
-              << result.numEdges() << " edges, " << result.numFaces()
-              << " faces; max interpolation error " << error
+              << result.numEdges() << " edges, " << result.numFaces() << " faces" << triangles
+              << "; max interpolation error " << error
               << " m (each control vertex to the surface inside its vertex face, computed in "
                  "double precision; the file's coordinates are single precision)\n";
   }

@@ -82,7 +82,30 @@ LoadedModel ModelOptions::load() const {
       throw InvalidInputError(std::string("--up: ") + e.what());
     }
   }
-  Mesh mesh = io::loadMeshSource(scene.mesh, &loaded.report, scene.up);
+  Mesh mesh;
+  try {
+    mesh = io::loadMeshSource(scene.mesh, &loaded.report, scene.up);
+  } catch (const IOError& e) {  // a scene's mesh is said of the scene that names it
+    if (!isScene) throw;
+    throw IOError(source + ": /mesh: " + e.what());
+  } catch (const TopologyError& e) {
+    if (!isScene) throw;
+    throw TopologyError(source + ": /mesh: " + e.what());
+  } catch (const InvalidInputError& e) {
+    if (!isScene) throw;
+    throw InvalidInputError(source + ": /mesh: " + e.what());
+  }
+  // A scale that makes some rest length overflow is the scale's fault: said of it, not of
+  // "edge 0" (which the model's own check would name).
+  for (Index e = 0; e < mesh.numEdges() && u.restLengthScale != 1.0; ++e) {
+    const auto [a, b] = mesh.edge(e);
+    if (!std::isfinite(u.restLengthScale *
+                       (mesh.positions().row(a) - mesh.positions().row(b)).norm()))
+      throw InvalidInputError(
+          std::string(restLengthScale ? "--rest-length-scale"
+                                      : source + ": /properties/rest_length_scale") +
+          ": " + jsonNumber(u.restLengthScale) + " makes rest lengths too large to represent");
+  }
   loaded.model = io::buildModel(scene, std::move(mesh));
   if (isScene) loaded.scene = std::move(scene);
   return loaded;
@@ -408,6 +431,10 @@ void RunOptions::prepare(const LoadedModel& loaded, Simulation& sim) const {
     Points kick;
     randomVelocity(loaded.model.properties.mass, amplitude, s, kick);
     state.velocity += kick;
+    if (!state.velocity.allFinite())
+      throw InvalidInputError(
+          std::string(perturb ? "--perturb" : loaded.source + ": /simulation/perturb") + ": " +
+          jsonNumber(amplitude) + " m/s gives velocities too large to represent");
   }
   // A state file holds positions and velocities only (cli.md): the time comes from the flag.
   if (!(startTime >= 0.0) || !std::isfinite(startTime))
