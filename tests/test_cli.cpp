@@ -198,6 +198,44 @@ TEST_F(Cli, ValuesTooLargeAndAScenesMissingMeshAreSaidOfWhatGaveThem) {
       << stl.out;
 }
 
+TEST_F(Cli, InfoOfASceneSaysWhatTheSceneSets) {
+  std::ofstream(path("s.json")) << R"({"version": 1, "mesh": "builtin:torus",
+    "properties": {"gravity": [0, 0, -9.81], "stiffness_cap": 4, "rigidity": 0.25,
+                   "rest_length_scale": 0.9},
+    "constraints": [{"type": "position", "vertex": 0},
+                    {"type": "position", "vertex": 5, "target": [3, 0, 1], "start": 0, "end": 2},
+                    {"type": "normal", "vertex": 22}],
+    "forces": [{"vertex": 55, "force": [0, 0, 2.0], "end": 0.5}],
+    "edits": [{"time": 2.0, "action": "relax"}],
+    "simulation": {"dt_ratio": 0.4, "time": 5.0, "perturb": 0.01}})";
+  const Result r = run("info " + path("s.json") + " --json");
+  ASSERT_EQ(r.status, 0) << r.err;
+  const auto j = nlohmann::json::parse(r.out);
+  EXPECT_EQ(j["gravity"][2], -9.81);
+  EXPECT_EQ(j["stiffness_cap"], 4.0);
+  EXPECT_EQ(j["rigidity"][0], 0.25);
+  EXPECT_NEAR(j["rest_length"][1].get<double>(), 0.9 * 1.8541019662496854, 1e-12);
+  const auto& scene = j["scene"];
+  EXPECT_EQ(scene["pins"], 2);
+  EXPECT_EQ(scene["travelling_pins"], 1);
+  EXPECT_EQ(scene["normal_pins"], 1);
+  EXPECT_EQ(scene["forces"], 1);
+  EXPECT_EQ(scene["torques"], 0);
+  EXPECT_EQ(scene["edits"], 1);
+  EXPECT_EQ(scene["dt_ratio"], 0.4);
+  EXPECT_TRUE(scene["dt"].is_null());
+  EXPECT_EQ(scene["time"], 5.0);
+  const Result text = run("info " + path("s.json"));
+  EXPECT_NE(text.out.find("scene: 2 pins (1 travelling), 1 normal pins, 1 forces, 0 torques, "
+                          "1 timed edits; scheme default, dt_ratio 0.4, 5 s, perturb 0.01"),
+            std::string::npos)
+      << text.out;
+  EXPECT_NE(text.out.find("stiffness cap 4 N/m"), std::string::npos) << text.out;
+  EXPECT_NE(text.out.find("gravity [    0     0 -9.81] m/s^2"), std::string::npos) << text.out;
+  // A mesh alone has no scene settings to tell.
+  EXPECT_FALSE(nlohmann::json::parse(run("info builtin:torus --json").out).contains("scene"));
+}
+
 TEST_F(Cli, InfoOfTheFinsReportsTheNonManifoldEdge) {
   const auto j = nlohmann::json::parse(run("info builtin:fins --json").out);
   EXPECT_EQ(j["non_manifold_edges"], 1);

@@ -1,6 +1,7 @@
 // zsculpt info MESH|SCENE [--json]: topology, properties and critical sampling period.
 
 #include <cctype>
+#include <cmath>
 #include <filesystem>
 #include <iostream>
 #include <sstream>
@@ -30,6 +31,23 @@ int runInfo(const ModelOptions& options, bool json) {
   const auto isolated = static_cast<long>(mesh.isolatedVertices().size());
   const Index components = mesh.numComponents();
   const PhysicalProperties& p = model.properties;
+  const double restMin = p.restLength.size() ? p.restLength.minCoeff() : 0.0;
+  const double restMax = p.restLength.size() ? p.restLength.maxCoeff() : 0.0;
+  // What a scene sets besides the properties: its constraints, loads, edits and run.
+  const std::optional<io::SceneDescription>& scene = loaded.scene;
+  long pins = 0, travelling = 0, normals = 0;
+  if (scene)
+    for (const io::ConstraintSpec& c : scene->constraints) {
+      if (c.type == io::ConstraintType::Normal) {
+        ++normals;
+      } else {
+        ++pins;
+        if (c.start) ++travelling;
+      }
+    }
+  auto optionalNumber = [](const std::optional<double>& v) {
+    return v ? jsonNumber(*v) : std::string("null");
+  };
   if (json) {
     std::cout << "{\n"
               << "  \"source\": " << jsonString(loaded.source) << ",\n"
@@ -50,7 +68,25 @@ int runInfo(const ModelOptions& options, bool json) {
               << "  \"non_orientable_components\": " << loaded.report.nonOrientableComponents
               << ",\n"
               << "  \"up_axis\": \"" << io::upAxisName(loaded.report.up) << "\",\n"
-              << "  \"t_max\": " << jsonNumber(tMax) << ",\n"
+              << "  \"rigidity\": [" << jsonNumber(p.rigidity.minCoeff()) << ", "
+              << jsonNumber(p.rigidity.maxCoeff()) << "],\n"
+              << "  \"stiffness_cap\": " << jsonNumber(p.stiffnessCap) << ",\n"
+              << "  \"gravity\": " << vec(p.gravity) << ",\n"
+              << "  \"rest_length\": [" << jsonNumber(restMin) << ", " << jsonNumber(restMax)
+              << "],\n";
+    if (scene)
+      std::cout << "  \"scene\": {\"pins\": " << pins << ", \"travelling_pins\": " << travelling
+                << ", \"normal_pins\": " << normals << ", \"forces\": " << scene->forces.size()
+                << ", \"torques\": " << scene->torques.size()
+                << ", \"edits\": " << scene->edits.size()
+                << ", \"scheme\": " << jsonString(io::schemeName(scene->simulation.scheme))
+                << ", \"dt\": " << optionalNumber(scene->simulation.dt)
+                << ", \"dt_ratio\": " << optionalNumber(scene->simulation.dtRatio)
+                << ", \"steps\": "
+                << (scene->simulation.steps ? std::to_string(*scene->simulation.steps) : "null")
+                << ", \"time\": " << optionalNumber(scene->simulation.time)
+                << ", \"perturb\": " << jsonNumber(scene->simulation.perturb) << "},\n";
+    std::cout << "  \"t_max\": " << jsonNumber(tMax) << ",\n"
               << "  \"t_max_tight\": " << jsonNumber(tTight) << "\n"
               << "}\n";
     return 0;
@@ -85,8 +121,23 @@ int runInfo(const ModelOptions& options, bool json) {
             << p.mass.sum() << "), stiffness " << p.stiffness.minCoeff() << " .. "
             << p.stiffness.maxCoeff() << ", angular stiffness " << p.angularStiffness.minCoeff()
             << " .. " << p.angularStiffness.maxCoeff() << ", damping " << p.damping.minCoeff()
-            << " .. " << p.damping.maxCoeff() << "\n"
-            << "  critical sampling period T_max (equation 5, the bound --dt-ratio scales) " << tMax
+            << " .. " << p.damping.maxCoeff() << ", rigidity " << p.rigidity.minCoeff() << " .. "
+            << p.rigidity.maxCoeff() << ", rest lengths " << restMin << " .. " << restMax << " m\n";
+  if (std::isfinite(p.stiffnessCap)) std::cout << "  stiffness cap " << p.stiffnessCap << " N/m\n";
+  if (!p.gravity.isZero()) std::cout << "  gravity [" << p.gravity.transpose() << "] m/s^2\n";
+  if (scene) {
+    std::cout << "  scene: " << pins << " pins (" << travelling << " travelling), " << normals
+              << " normal pins, " << scene->forces.size() << " forces, " << scene->torques.size()
+              << " torques, " << scene->edits.size() << " timed edits; scheme "
+              << io::schemeName(scene->simulation.scheme);
+    if (scene->simulation.dt) std::cout << ", dt " << *scene->simulation.dt << " s";
+    if (scene->simulation.dtRatio) std::cout << ", dt_ratio " << *scene->simulation.dtRatio;
+    if (scene->simulation.steps) std::cout << ", " << *scene->simulation.steps << " steps";
+    if (scene->simulation.time) std::cout << ", " << *scene->simulation.time << " s";
+    if (scene->simulation.perturb > 0.0) std::cout << ", perturb " << scene->simulation.perturb;
+    std::cout << "\n";
+  }
+  std::cout << "  critical sampling period T_max (equation 5, the bound --dt-ratio scales) " << tMax
             << " s; the default scheme's linear stability limit sqrt(12 / lambda_max) " << tTight
             << " s\n";
   return 0;
