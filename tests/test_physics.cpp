@@ -8,6 +8,7 @@
 #include <numbers>
 #include <random>
 #include <string>
+#include <string_view>
 #include <vector>
 
 // The tests are built without -fopenmp but link libgomp through the physics library: its
@@ -745,7 +746,8 @@ TEST_P(DefaultSchemeLongRun, EnergyStaysBoundedAtNinetyPercentOfTmax) {
   const double dt = 0.9 * criticalPeriod(SystemMatrices(model));
   const RunResult run = simulate(model, Scheme::Default, dt, 100000, perturbed(model, 0.05, 11));
   EXPECT_TRUE(run.finite);
-  EXPECT_LT(std::abs(run.energyDrift), 0.05) << GetParam();
+  // Measured: -0.38 %, -0.38 % and +0.02 % for the dodecahedron, Torus-I and the grid.
+  EXPECT_LT(std::abs(run.energyDrift), 0.01) << GetParam();
 }
 
 // 40 000 default steps at 0.9 T_max of the model spun rigidly about an oblique axis.
@@ -763,7 +765,10 @@ TEST_P(DefaultSchemeLongRun, ASpinningModelKeepsSpinning) {
   // its mean over the second and the last tenth of the run agree.
   // (It oscillates by a few percent; 400k steps of the dodecahedron show no trend.)
   EXPECT_LT(run.angularTrend, 0.02) << GetParam();
-  EXPECT_LT(run.maxAngularDrift, 0.1) << GetParam();
+  // Measured: the dodecahedron's L swings by up to 9.5 %, Torus-I's by 0.57 %, the grid's
+  // by 5e-6 (its trends 1.4 %, 0.06 %, 4e-7).
+  EXPECT_LT(run.maxAngularDrift, std::string_view(GetParam()) == "dodecahedron" ? 0.1 : 0.01)
+      << GetParam();
 }
 
 INSTANTIATE_TEST_SUITE_P(PaperModels, DefaultSchemeLongRun,

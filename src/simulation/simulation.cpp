@@ -601,7 +601,8 @@ void Simulation::subCycle(const Points& start) {
       !rigidMomentum_.angular.allFinite())
     throw DivergenceError("the simulation diverged at t = " + std::to_string(state_.time) +
                           " s (the state became non-finite)");
-  // The loads are held over the step: their work is F . dx exactly.
+  // The loads are held over the step: their work is F . dx (exact for the scheme's modified
+  // energy; against the total energy it is second order: 3 to 5 % apart at 0.5 T_max).
   if (!forces_.empty() || !torques_.empty()) {
     double work = 0.0;
     for (const Index i : externalRows_)
