@@ -390,16 +390,32 @@ TEST(SemiRigid, HalfRigidSpinConservesAngularMomentumExactly) {
 
 TEST(SemiRigid, PaintedRigidityKeepsMomentumAndAngularMomentumUnderInternalForces) {
   // Rigidity that varies from vertex to vertex: the rigid share of the end forces is taken
-  // turned by the cycle's rotation, so the elastic share's must be too, or every cycle
-  // leaves (T / 2)(R - I) sum sigma_i f_i of momentum behind (zero only for uniform chi).
-  ModelSpec spec;
-  spec.angular = 0.5;
-  Model model = makeModel(makeTorus(10, 10), spec);
-  for (Index v = 0; v < model.mesh.numVertices(); ++v)
-    model.properties.rigidity[v] = 0.14 * static_cast<double>(v % 7);
-  for (RigidFrame frame : {RigidFrame::Body, RigidFrame::World}) {
-    SimulationSettings settings = settingsFor(model, 0.5);
-    settings.rigidFrame = frame;
+  // turned by the cycle's rotation, so the elastic share's must be counted so too, or every
+  // cycle leaves (T / 2)(R - I) sum sigma_i f_i of momentum behind (zero only for uniform
+  // chi). Every scheme (the default kicks at the end forces, the others step from the start
+  // forces), both frames, with and without damping (the rigid kick's decay).
+  struct Case {
+    Scheme scheme;
+    RigidFrame frame;
+    double damping;
+  };
+  std::vector<Case> cases;
+  for (const double damping : {0.0, 0.05}) {
+    cases.push_back({Scheme::Default, RigidFrame::Body, damping});
+    cases.push_back({Scheme::Default, RigidFrame::World, damping});
+    for (const Scheme scheme :
+         {Scheme::Paper, Scheme::Exact, Scheme::SymplecticEuler, Scheme::ImplicitEuler})
+      cases.push_back({scheme, RigidFrame::Body, damping});
+  }
+  for (const Case& c : cases) {
+    ModelSpec spec;
+    spec.angular = 0.5;
+    spec.damping = c.damping;
+    Model model = makeModel(makeTorus(10, 10), spec);
+    for (Index v = 0; v < model.mesh.numVertices(); ++v)
+      model.properties.rigidity[v] = 0.14 * static_cast<double>(v % 7);
+    SimulationSettings settings = settingsFor(model, 0.5, c.scheme);
+    settings.rigidFrame = c.frame;
     Simulation sim(model, settings);
     State start = State::atRest(model.mesh);
     spinVelocity(model.properties.mass, start.position, Vec3(0.3, -0.2, 2.0), start.velocity);
@@ -410,15 +426,25 @@ TEST(SemiRigid, PaintedRigidityKeepsMomentumAndAngularMomentumUnderInternalForce
     const Diagnostics d0 = sim.diagnostics();
     const double scale = model.properties.mass.sum() * 2.0 * 3.0;  // M |omega| R: a momentum
     double worstP = 0.0, worstL = 0.0;
-    for (int k = 0; k < 2000; ++k) {
+    for (int k = 0; k < 1000; ++k) {
       sim.step();
       const Diagnostics d = sim.diagnostics();
-      worstP = std::max(worstP, (d.momentum - d0.momentum).norm() / scale);
-      worstL = std::max(
-          worstL, (d.angularMomentum - d0.angularMomentum).norm() / d0.angularMomentum.norm());
+      // Damping proportional to mass takes P away at the rate rho / mu, exactly.
+      const Vec3 expected = d0.momentum * std::exp(-c.damping / spec.mass * sim.time());
+      worstP = std::max(worstP, (d.momentum - expected).norm() / scale);
+      if (c.damping == 0.0)
+        worstL = std::max(
+            worstL, (d.angularMomentum - d0.angularMomentum).norm() / d0.angularMomentum.norm());
     }
-    const char* name = frame == RigidFrame::Body ? "body" : "world";
-    EXPECT_LT(worstP, 1e-12) << name;
+    const std::string name = std::string(schemeName(c.scheme)) +
+                             (c.frame == RigidFrame::Body ? " body" : " world") + " damping " +
+                             std::to_string(c.damping);
+    // With damping the other schemes damp the elastic share's impulse their own way (the
+    // exact scheme's propagator, symplectic Euler's factor), not as the rigid kick does: the
+    // shares then cancel to first order in the damping only. Measured: 1.3e-9 (exact) to
+    // 5.8e-6 (symplectic Euler) of the scale here; open (docs/semi-rigid-and-constraints.md).
+    const bool exact = c.damping == 0.0 || c.scheme == Scheme::Default;
+    EXPECT_LT(worstP, exact ? 1e-12 : 1e-5) << name;
     EXPECT_LT(worstL, 1e-11) << name;
   }
 }
@@ -1786,7 +1812,7 @@ TEST(DivergenceGuard, AStiffnessCappedModelMovingStablyIsNotARunaway) {
     SimulationSettings settings = settingsFor(model, ratio);
     settings.substepStrain = 0.0;
     Simulation sim(model, settings);
-    ASSERT_DOUBLE_EQ(sim.smallestElasticShare(), 0.01);
+    ASSERT_DOUBLE_EQ(sim.uniformElasticShare(), 0.01);
     State start = State::atRest(model.mesh);
     randomVelocity(model.properties.mass, 0.05, 3, start.velocity);
     sim.setState(start);
@@ -1813,6 +1839,34 @@ TEST(DivergenceGuard, AStiffnessCappedModelMovingStablyIsNotARunaway) {
       EXPECT_FALSE(ok);
     }
   }
+}
+
+TEST(DivergenceGuard, AVariedRigidityIsWatchedOnItsTotalEnergy) {
+  // Torus-I stressed (rest lengths x0.9), half of it painted (nearly) rigid. Weighting the
+  // springs by the smallest sigma stopped the 0.99 run at step 2 while its total energy
+  // fell, and did not watch the springs at all at rigidity 1, where the energy then ran from
+  // 5.9 J to 87,415 J unflagged. On the total energy the first runs and the second is caught.
+  auto run = [](double rigidity, double perturbation, int cycles) {
+    Model model = makeModel(makeTorus(10, 10), ModelSpec{.mass = 0.1, .angular = 0.05});
+    model.properties.restLength *= 0.9;
+    for (Index v = 50; v < 100; ++v) model.properties.rigidity[v] = rigidity;
+    Simulation sim(model, settingsFor(model, 0.5));
+    if (perturbation > 0.0) perturb(sim, perturbation);
+    EXPECT_EQ(sim.uniformElasticShare(), 1.0);
+    DivergenceGuard guard(sim);
+    for (int k = 0; k < cycles; ++k) {
+      guard.beforeStep(sim, static_cast<std::uint64_t>(k));
+      try {
+        sim.step();
+      } catch (const DivergenceError&) {
+        return k;
+      }
+      if (!guard.afterStep(sim, sim.diagnostics())) return k;
+    }
+    return cycles;
+  };
+  EXPECT_EQ(run(0.99, 0.0, 2000), 2000);
+  EXPECT_LT(run(1.0, 0.5, 3000), 3000);
 }
 
 TEST(Simulation, ALargeModelThatDivergesIsCaughtAndRolledBack) {

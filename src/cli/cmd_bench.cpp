@@ -826,13 +826,14 @@ void addBenchCommand(CLI::App& root, CommandList& commands) {
   app->add_flag("--drag", o->drag,
                 "one model: time the step under a load on one vertex, as while a user drags");
   // Two callbacks, not CLI11's "!" negation, whose help shows "{false}" after the names.
-  app->add_flag_callback(
+  auto* driftOn = app->add_flag_callback(
       "--drift-filter", [o] { o->driftFilter = true; },
       "default scheme on braced models: filter the drift too (the default; "
       "docs/solver.md, section 6)");
   app->add_flag_callback(
-      "--no-drift-filter", [o] { o->driftFilter = false; },
-      "default scheme: the kick filter alone");
+         "--no-drift-filter", [o] { o->driftFilter = false; },
+         "default scheme: the kick filter alone")
+      ->excludes(driftOn);
   commands.push_back({app, [o]() { return runBench(*o); }});
 }
 

@@ -1,6 +1,7 @@
 // zsculpt subdivide MESH|SCENE --levels L --out FILE: the smooth surface of the modified
 // Doo-Sabin scheme (paper section 3), written in any format assimp exports.
 
+#include <cctype>
 #include <filesystem>
 #include <iostream>
 #include <new>
@@ -53,8 +54,9 @@ int runSubdivide(const SubdivideOptions& options) {
   } else {
     // STL holds triangles only: the file's count, said beside the surface's own.
     std::string triangles;
-    if (std::filesystem::path(options.out).extension() == ".stl" ||
-        std::filesystem::path(options.out).extension() == ".STL") {
+    std::string extension = std::filesystem::path(options.out).extension().string();
+    for (char& c : extension) c = static_cast<char>(std::tolower(static_cast<unsigned char>(c)));
+    if (extension == ".stl") {
       Index count = 0;
       for (Index f = 0; f < result.numFaces(); ++f)
         count += static_cast<Index>(result.face(f).size()) - 2;

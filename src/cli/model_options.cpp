@@ -143,13 +143,14 @@ void RunOptions::addTo(CLI::App* app) {
   app->add_flag("--allow-unstable", allowUnstable,
                 "run even above the scheme's stable limit (to watch it diverge)");
   // Two callbacks, not CLI11's "!" negation, whose help shows "{false}" after the names.
-  app->add_flag_callback(
+  auto* driftOn = app->add_flag_callback(
       "--drift-filter", [this] { driftFilter = true; },
       "default scheme on braced models: filter the drift too (the default; "
       "docs/solver.md, section 6)");
   app->add_flag_callback(
-      "--no-drift-filter", [this] { driftFilter = false; },
-      "default scheme: the kick filter alone");
+         "--no-drift-filter", [this] { driftFilter = false; },
+         "default scheme: the kick filter alone")
+      ->excludes(driftOn);
   app->add_option("--substep-strain", substepStrain,
                   "default scheme: split a cycle into 2, 4, ... steps when an edge would change "
                   "its length by more than this fraction of its rest length in one (default "
@@ -431,7 +432,10 @@ void RunOptions::prepare(const LoadedModel& loaded, Simulation& sim) const {
     Points kick;
     randomVelocity(loaded.model.properties.mass, amplitude, s, kick);
     state.velocity += kick;
-    if (!state.velocity.allFinite())
+    const double kinetic = 0.5 * (loaded.model.properties.mass.array() *
+                                  state.velocity.rowwise().squaredNorm().array())
+                                     .sum();
+    if (!state.velocity.allFinite() || !std::isfinite(kinetic))
       throw InvalidInputError(
           std::string(perturb ? "--perturb" : loaded.source + ": /simulation/perturb") + ": " +
           jsonNumber(amplitude) + " m/s gives velocities too large to represent");

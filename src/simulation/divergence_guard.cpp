@@ -22,7 +22,7 @@ DivergenceGuard::DivergenceGuard(const Simulation& sim) {
 
 double DivergenceGuard::energyOf(const Simulation& sim, const Diagnostics& diagnostics) {
   const PotentialEnergy& v = diagnostics.potential;
-  const double share = sim.smallestElasticShare();
+  const double share = sim.uniformElasticShare();
   const double springs = v.radial + v.angular;
   return diagnostics.kinetic + v.gravity + (share == 1.0 ? springs : share * springs);
 }
@@ -88,8 +88,8 @@ bool DivergenceGuard::afterStep(const Simulation& sim, const Diagnostics& diagno
     std::ostringstream msg;
     msg.precision(4);
     msg << "the energy ran away: " << energy << " J";
-    if (sim.smallestElasticShare() < 1.0)
-      msg << " (the kinetic energy plus " << sim.smallestElasticShare() << " times the springs')";
+    if (sim.uniformElasticShare() < 1.0)
+      msg << " (the kinetic energy plus " << sim.uniformElasticShare() << " times the springs')";
     msg << ", more than " << kEnergyFactor << " times the start energy " << start_
         << " J plus the work put in, " << inflow_
         << " J, plus the largest kinetic energy before it";

@@ -50,7 +50,7 @@ void Simulation::updateRigidity() {
   sigma_.resize(static_cast<size_t>(n));
   rigidActive_ = false;
   allRigid_ = n > 0;
-  smallestShare_ = 1.0;
+  bool varied = false;
   for (Index i = 0; i < n; ++i) {
     // Section 4.3: chi_i = 1 - sigma_i, sigma_i = min(kappa_0 / kappa_i, 1), or the painted
     // rigidity where it is larger; the force splits into sigma_i F_i and chi_i F_i.
@@ -59,7 +59,7 @@ void Simulation::updateRigidity() {
     const double sigma = std::min(1.0 - painted, automatic);
     chi_[static_cast<size_t>(i)] = effectiveRigidity(painted, p.stiffness[i], p.stiffnessCap);
     sigma_[static_cast<size_t>(i)] = sigma;
-    smallestShare_ = std::min(smallestShare_, sigma);
+    varied = varied || sigma != sigma_[0];
     rigidActive_ = rigidActive_ || sigma < 1.0;
     allRigid_ = allRigid_ && sigma == 0.0;
   }
@@ -70,6 +70,7 @@ void Simulation::updateRigidity() {
   responseValid_ = false;
   baseForceValid_ = false;
   elasticEnd_.resize(rigidActive_ && !allRigid_ ? n : 0, 3);
+  uniformShare_ = n > 0 && !varied ? sigma_[0] : 1.0;
 }
 
 void Simulation::splitVelocity() {
@@ -719,6 +720,19 @@ void Simulation::finishTrial() {
   if (rigidActive_) trial_.position.swap(elasticEnd_);
 }
 
+Vec3 Simulation::elasticInternalShare(const Points& force) const {
+  // sum_i sigma_i f_i of the internal forces: `force` holds them plus gravity mu_i g.
+  Vec3 share = Vec3::Zero();
+  double sigmaMass = 0.0;
+  const VectorX& mass = model_.properties.mass;
+  for (Index i = 0; i < force.rows(); ++i) {
+    const double s = sigma_[static_cast<size_t>(i)];
+    share += s * force.row(i).transpose();
+    sigmaMass += s * mass[i];
+  }
+  return share - sigmaMass * model_.properties.gravity;
+}
+
 void Simulation::finishRigid() {
   const double t = stepper_->period();
   const VectorX& mass = model_.properties.mass;
@@ -773,20 +787,20 @@ void Simulation::finishRigid() {
       gained += mass[i] * deformation_.row(i).transpose();
     const Eigen::RowVector3d mean = (gained / end_.mass).transpose();
     for (Index i = 0; i < deformation_.rows(); ++i) deformation_.row(i) -= mean;
-    // The elastic step's second half kick took the internal forces where its drift ended,
-    // unturned; the rigid body's took them turned by the cycle's rotation R. Counted in the
-    // same (turned) frame the two shares' impulses cancel, so internal forces keep P
-    // whatever chi is: the body gets (T / 2)(R - I) sum sigma_i f_i more (zero when chi is
-    // uniform, as then sum sigma_i f_i = 0). Gravity's share is the same in both frames.
-    Vec3 turnedShare = Vec3::Zero();
-    double sigmaMass = 0.0;
-    for (Index i = 0; i < baseForce_.rows(); ++i) {
-      const double s = sigma_[static_cast<size_t>(i)];
-      turnedShare += s * baseForce_.row(i).transpose();
-      sigmaMass += s * mass[i];
-    }
-    turnedShare -= sigmaMass * model_.properties.gravity;
-    gained += (0.5 * t) * (turnedShare - drift_.rotation.transpose() * turnedShare);
+    // The rigid body's second half kick takes the internal forces at the end turned by the
+    // cycle's rotation R, (T / 2) sum chi_i R f_i = -(T / 2) sum sigma_i R f_i. The elastic
+    // step took the sigma share otherwise: the default scheme's second half kick at the
+    // unturned end forces, the other schemes their whole step at the start forces. Counted
+    // the rigid body's way, the two shares' impulses cancel and internal forces keep P
+    // whatever chi is: the body gets (T / 2)(sum sigma_i R f_i - what the elastic step took
+    // for it), damped as the rigid kick is (zero when chi is uniform: then sum sigma_i f_i
+    // = 0 at every position). Gravity's share is the same in both frames and drops out.
+    const Vec3 turnedShare = elasticInternalShare(baseForce_);
+    const Vec3 elasticTook = settings_.scheme == Scheme::Default
+                                 ? Vec3(drift_.rotation.transpose() * turnedShare)
+                                 : startElasticShare_;
+    const double decay = rigidDamping_ != 0.0 ? std::exp(-rigidDamping_ * t) : 1.0;
+    gained += (decay * 0.5 * t) * (turnedShare - elasticTook);
     if (settings_.rigidFrame == RigidFrame::Body)
       for (Index i = 0; i < deformation_.rows(); ++i)
         deformation_.row(i) = (drift_.rotation * deformation_.row(i).transpose()).transpose();
@@ -862,6 +876,7 @@ void Simulation::coupledStep() {
     start_ = massProperties(mass, state_.position, threads);
     if (!baseForceValid_) computeBaseForce(state_.position);
     totalForce_ = baseForce_ + external_;
+    startElasticShare_ = elasticInternalShare(baseForce_);
     weightedResultant(chi_, state_.position, totalForce_, start_.centre, startRigidForce_,
                       startRigidTorque_, threads);
     Vec3 unused;

@@ -34,11 +34,14 @@ class DivergenceGuard {
   /// Starts from the simulation's present state and energy.
   explicit DivergenceGuard(const Simulation& sim);
 
-  /// The energy the guard watches: the kinetic and gravitational energy plus the smallest
-  /// elastic share sigma_min times the springs' (Simulation::smallestElasticShare). Without
-  /// rigidity that is the total energy. With it, the deformation keeps K + sigma V, not
-  /// K + V: a stiffness-capped model (sigma = kappa_0 / kappa) moving stably shows a total
-  /// up to 1 / sigma times its start, which is not a blow-up (a blow-up outgrows both).
+  /// The energy the guard watches: the kinetic and gravitational energy plus sigma times
+  /// the springs' where every vertex has the same elastic share sigma
+  /// (Simulation::uniformElasticShare), else the total energy. With a uniform sigma the
+  /// deformation keeps K + sigma V, not K + V: a stiffness-capped model (sigma = kappa_0 /
+  /// kappa) moving stably shows a total up to 1 / sigma times its start, which is not a
+  /// blow-up (a blow-up outgrows both). A sigma that varies keeps no such sum; weighting by
+  /// the smallest sigma stopped stable models and missed runaways where a region was fully
+  /// rigid (sigma_min = 0: the springs unwatched).
   [[nodiscard]] static double energyOf(const Simulation& sim, const Diagnostics& diagnostics);
 
   /// The present state and energy become the new start, and both checkpoints: after a

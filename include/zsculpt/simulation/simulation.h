@@ -208,11 +208,12 @@ class Simulation {
   [[nodiscard]] const std::vector<double>& elasticShare() const { return sigma_; }
   /// True when some chi_i > 0: the rigid body is part of the cycle.
   [[nodiscard]] bool rigidActive() const { return rigidActive_; }
-  /// The smallest sigma_i (1 without rigidity). The deformation feels sigma_i times the
-  /// springs' forces, so with a uniform sigma it keeps the kinetic energy plus sigma times
-  /// the springs' energy, not plus all of it (a capped model's springs may hold a hundred
-  /// times what the motion does); sigma_min times their energy bounds what it keeps.
-  [[nodiscard]] double smallestElasticShare() const { return smallestShare_; }
+  /// sigma when every vertex has the same sigma_i, else 1 (and 1 without rigidity). The
+  /// deformation feels sigma times the springs' forces, so it keeps the kinetic energy plus
+  /// sigma times the springs' energy, not plus all of it (a capped model's springs may hold
+  /// a hundred times what the motion does). A sigma that varies keeps no such sum (sigma_i
+  /// f_i is no energy's gradient): 1, the total energy.
+  [[nodiscard]] double uniformElasticShare() const { return uniformShare_; }
   /// P and L (about the centre of mass) carried by the rigid motion (zero when inactive).
   [[nodiscard]] const RigidMomentum& rigidMomentum() const { return rigidMomentum_; }
 
@@ -298,7 +299,10 @@ class Simulation {
 
   // Semi-rigid motion (section 4.3).
   std::vector<double> chi_, sigma_;
-  double smallestShare_ = 1.0;
+  double uniformShare_ = 1.0;
+  // sum_i sigma_i f_i of the internal forces at the cycle's start (finishRigid).
+  Vec3 startElasticShare_ = Vec3::Zero();
+  [[nodiscard]] Vec3 elasticInternalShare(const Points& force) const;
   bool rigidActive_ = false;
   bool allRigid_ = false;
   double rigidDamping_ = 0.0;
