@@ -70,7 +70,9 @@ double matrixEdgeStiffness(const Model& model, Index edge) {
   const auto& x = model.mesh.positions();
   const double loaded2 = (x.row(i) - x.row(j)).squaredNorm();
   const double rest = model.properties.restLength[edge];
-  const double length2 = rest > 0.0 ? std::min(loaded2, rest * rest) : loaded2;
+  // Lengths compared, not squares: an unscaled rest length is the loaded length's square
+  // root, and its square may differ from loaded2 in the last bit.
+  const double length2 = rest > 0.0 && rest < std::sqrt(loaded2) ? rest * rest : loaded2;
   for (Index angle : model.angles.edgeAngles.row(edge)) {
     const Index centre = model.angles.angles[angle][0];
     kappa += 2.0 * p.angularStiffness[centre] / length2;
