@@ -71,6 +71,30 @@ void Simulation::updateRigidity() {
   baseForceValid_ = false;
   elasticEnd_.resize(rigidActive_ && !allRigid_ ? n : 0, 3);
   uniformShare_ = n > 0 && !varied ? sigma_[0] : 1.0;
+  someFullyRigid_ = false;
+  elasticMass_ = p.mass;
+  for (Index i = 0; i < n; ++i)
+    if (sigma_[static_cast<size_t>(i)] == 0.0) {
+      elasticMass_[i] = 0.0;
+      someFullyRigid_ = !allRigid_;
+    }
+}
+
+void Simulation::holdFullyRigidVertices() {
+  // A fully rigid vertex (sigma = 0) feels no elastic force, so a deformation velocity it
+  // was left with (the hand-over's mean and rigid motion are taken out of every vertex)
+  // would carry it away from the body for ever: a stressed torus rigid on one half ran from
+  // 5.9 J to 87,415 J. Take out of the deformation the rigid motion that best fits the
+  // elastic vertices alone, and zero it at the fully rigid ones: what is left has no net
+  // momentum or angular momentum (the rigid rows are zero, the elastic ones balance), so
+  // the body keeps the totals; the kinetic energy of the relative motion dropped is lost,
+  // as in an inelastic constraint.
+  const MassProperties elastic = massProperties(elasticMass_, trial_.position, stepper_->threads());
+  if (!(elastic.mass > 0.0)) return;
+  (void)removeRigidMotion(elasticMass_, elastic, trial_.position, deformation_,
+                          stepper_->threads());
+  for (Index i = 0; i < deformation_.rows(); ++i)
+    if (sigma_[static_cast<size_t>(i)] == 0.0) deformation_.row(i).setZero();
 }
 
 void Simulation::splitVelocity() {
@@ -822,6 +846,7 @@ void Simulation::finishRigid() {
     }
     rigidMomentum_.linear += moved.linear;
     rigidMomentum_.angular += (0.5 * t) * (startTorque + endTorque);
+    if (someFullyRigid_) holdFullyRigidVertices();
   }
   state_.position = trial_.position;
   state_.velocity = deformation_;

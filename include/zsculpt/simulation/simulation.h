@@ -300,6 +300,10 @@ class Simulation {
   // Semi-rigid motion (section 4.3).
   std::vector<double> chi_, sigma_;
   double uniformShare_ = 1.0;
+  // Some vertices fully rigid (sigma = 0) and some not: their masses are 0 in elasticMass_.
+  bool someFullyRigid_ = false;
+  VectorX elasticMass_;
+  void holdFullyRigidVertices();
   // sum_i sigma_i f_i of the internal forces at the cycle's start (finishRigid).
   Vec3 startElasticShare_ = Vec3::Zero();
   [[nodiscard]] Vec3 elasticInternalShare(const Points& force) const;
