@@ -24,7 +24,7 @@ double DivergenceGuard::energyOf(const Simulation& sim, const Diagnostics& diagn
   const PotentialEnergy& v = diagnostics.potential;
   const double share = sim.uniformElasticShare();
   const double springs = v.radial + v.angular;
-  return diagnostics.kinetic + v.gravity + (share == 1.0 ? springs : share * springs);
+  return diagnostics.kinetic + v.gravity + share * springs;  // 1 x springs is exact
 }
 
 void DivergenceGuard::restart(const Simulation& sim) {
