@@ -1044,6 +1044,17 @@ TEST_F(Cli, ARefusedRunMakesNoFolderAndNamesTheFlagAtFault) {
   expectOneLineError(run("simulate builtin:dodecahedron --mass 1e-320 --steps 2 --state-out " +
                          path("tiny/s.csv")),
                      2, "builtin:dodecahedron: equation 5's critical period T_max is 0 s");
+  // Masses far out of scale give a period whose cube overflows (the default scheme's filter
+  // is T^3 / 24): --mass 1e300 made the state NaN at step 1 and exited 3, as a divergence.
+  expectOneLineError(
+      run("simulate builtin:dodecahedron --mass 1e300 --steps 2 --state-out " + path("tiny/s.csv")),
+      2,
+      "builtin:dodecahedron: the default time step (0.5 T_max): 3.16228e+149 s is "
+      "outside [1e-50, 1e+50] s");
+  expectOneLineError(run("simulate builtin:dodecahedron --mass 1e-300 --steps 2"), 2,
+                     "s is outside [1e-50, 1e+50] s");
+  expectOneLineError(run("simulate builtin:dodecahedron --dt 1e60 --steps 2"), 2,
+                     "--dt: 1e+60 s is outside [1e-50, 1e+50] s");
   for (const char* d : {"demo", "figures", "curve", "deep", "tiny"})
     EXPECT_FALSE(fs::exists(path(d))) << d;
   // A folder given as the mesh output is a folder, not an unknown format.

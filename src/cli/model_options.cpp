@@ -351,6 +351,15 @@ RunOptions::Resolved RunOptions::resolve(const LoadedModel& loaded) const {
   if (!(period > 0.0))
     throw InvalidInputError(std::string(dt ? "--dt" : "--dt-ratio") +
                             ": the time step must be positive");
+  {
+    const std::string source = dt                           ? std::string("--dt")
+                               : dtRatio                    ? std::string("--dt-ratio")
+                               : fromScene && fromScene->dt ? loaded.source + ": /simulation/dt"
+                               : fromScene && fromScene->dtRatio
+                                   ? loaded.source + ": /simulation/dt_ratio"
+                                   : loaded.source + ": the default time step (0.5 T_max)";
+    checkPeriodRange(period, source);
+  }
   // Refuse a step above the scheme's stable limit. The Gerschgorin bound is cheap and never
   // above the tight one, so the eigenvalue is computed only when the step exceeds it.
   const double cheapLimit =

@@ -7,6 +7,7 @@
 #include <cstdint>
 #include <cstring>
 #include <limits>
+#include <sstream>
 #include <string>
 #include <type_traits>
 #include <unsupported/Eigen/MatrixFunctions>
@@ -193,10 +194,21 @@ int automaticThreads(Index vertices) {
   return vertices >= kParallelMinVertices ? maximumThreads() : 1;
 }
 
+void checkPeriodRange(double period, const std::string& what) {
+  if (period >= kShortestPeriod && period <= kLongestPeriod) return;
+  std::ostringstream msg;
+  msg.precision(6);
+  msg << what << ": " << period << " s is outside [" << kShortestPeriod << ", " << kLongestPeriod
+      << "] s, where the schemes' powers of the time step stay finite and nonzero (are the "
+         "masses and stiffnesses in consistent units?)";
+  throw InvalidInputError(msg.str());
+}
+
 Stepper::Stepper(const Model& model, Scheme scheme, double period, const StepperOptions& options)
     : model_(model), scheme_(scheme), period_(period), options_(options), system_(model) {
   if (!(period > 0.0) || !std::isfinite(period))
     throw InvalidInputError("time step " + std::to_string(period) + " must be positive");
+  checkPeriodRange(period, "time step");
   if (options.threads < 0 || options.threads > kMaxThreads)
     throw InvalidInputError("threads " + std::to_string(options.threads) +
                             ": must be 0 (automatic) to " + std::to_string(kMaxThreads));
@@ -260,6 +272,7 @@ void Stepper::propertiesChanged(std::span<const Index> vertices) {
 void Stepper::setPeriod(double period) {
   if (!(period > 0.0) || !std::isfinite(period))
     throw InvalidInputError("time step " + std::to_string(period) + " must be positive");
+  checkPeriodRange(period, "time step");
   if (period == period_) return;
   if (scheme_ != Scheme::Default)
     throw InvalidInputError(std::string("the ") + std::string(schemeName(scheme_)) +

@@ -37,6 +37,7 @@
 #include <memory>
 #include <optional>
 #include <span>
+#include <string>
 #include <string_view>
 #include <vector>
 
@@ -52,6 +53,16 @@ enum class Scheme { Default, Paper, Exact, SymplecticEuler, ImplicitEuler };
 std::string_view schemeName(Scheme scheme);
 /// Throws InvalidInputError naming the unknown scheme and listing the valid ones.
 Scheme schemeFromName(std::string_view name);
+
+/// The periods a stepper takes: the schemes' coefficients hold powers of the period up to
+/// T^6 (the exact scheme's series; the default's filter T^3 / 24), which overflow or
+/// underflow outside this range (a mass of 1e300 kg gave T = 2.7e149 s, T^3 = inf, and a
+/// state of NaN at the first step). Every model in consistent units is far inside it.
+inline constexpr double kShortestPeriod = 1e-50;
+inline constexpr double kLongestPeriod = 1e50;
+/// Throws InvalidInputError, "<what>: <period> s is outside ...", unless the period is in
+/// [kShortestPeriod, kLongestPeriod].
+void checkPeriodRange(double period, const std::string& what);
 
 /// The largest stable period of a scheme for these matrices, from the largest eigenvalue
 /// lambda_0 of Omega^2 (infinite for exact and implicit-euler): sqrt(12 / lambda_0) for
