@@ -240,6 +240,7 @@ void ConstraintSolver::beginStep(const Mesh& mesh, const ConstraintSet& constrai
         ++turn.foldsAfterArriving;
         turn.arrived = false;
       }
+      turn.settled = 0.0;
       turn.lastOff = -1.0;  // the way back from a fold is not lost (kTurnBudget)
       for (auto& g : plane.gradient) g.setZero();
       lambda_[q].setZero();
@@ -270,6 +271,10 @@ void ConstraintSolver::beginStep(const Mesh& mesh, const ConstraintSet& constrai
       if (fromTarget <= maxTurn) {  // arrived
         turn.lost = 0.0;
         turn.arrived = true;
+        turn.settled += std::min(1.0, period / ringPeriod);
+        if (turn.settled >= kSettledPeriods) turn.foldsAfterArriving = 0;
+      } else {
+        turn.settled = 0.0;
       }
       if (turn.lost > kTurnBudget || turn.foldsAfterArriving > kFoldBudget) {
         turn.stopped = true;  // the budget is spent: hold the normal where it is

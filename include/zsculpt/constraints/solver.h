@@ -163,6 +163,12 @@ class ConstraintSolver {
   /// then arrives and stays (Constraints.AFoldingRingIsLetGoInsteadOfTornApart: 16 folds, 2
   /// after arriving).
   static constexpr int kFoldBudget = 4;
+  /// Ring periods a normal must stay at its target, unbroken, for its folds to be forgotten
+  /// (kFoldBudget): a ring that settled has shown it can be held there, and a later fold is
+  /// a new disturbance (a drag nearby), not the pumping above, whose ring stayed at most 100
+  /// ring periods (193 cycles) between folds. Without it, five pushes an hour apart stopped
+  /// the constraint for good.
+  static constexpr double kSettledPeriods = 500.0;
   /// The vertices of the normal constraints let go this cycle.
   [[nodiscard]] std::span<const Index> releasedVertices() const { return releasedVertices_; }
   /// Lets go, for the rest of the cycle, every normal held in it, and returns how many: the
@@ -231,6 +237,7 @@ class ConstraintSolver {
     double lost = 0.0;           // radians the ring lost of its way since it last arrived
     bool arrived = false;        // it arrived since it last folded
     int foldsAfterArriving = 0;  // folds that came after an arrival (kFoldBudget)
+    double settled = 0.0;        // ring periods at the target, unbroken (kSettledPeriods)
     bool stopped = false;        // the budget is spent: hold `kept`
     Vec3 kept = Vec3::UnitZ();
   };
