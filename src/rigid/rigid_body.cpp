@@ -238,28 +238,4 @@ RigidMomentum removeRigidMotion(const VectorX& mass, const MassProperties& prope
   return removed;
 }
 
-RigidMomentum removeSharedRigidMotion(const VectorX& mass, std::span<const double> sigma,
-                                      const MassProperties& shared, const Vec3& centre,
-                                      const Points& position, Points& velocity, int threads) {
-  RigidMomentum removed;
-  if (!(shared.mass > 0.0)) return removed;
-  const RigidMomentum m = momentumOf(mass, position, velocity, centre, threads);
-  // sum sigma_i m_i (A + omega x (r_i - c_s)) = mu A, and its angular momentum about `centre`
-  // is d x mu A + I_s omega with d = c_s - centre: so A = P / mu, I_s omega = L - d x P.
-  const Vec3 a = m.linear / shared.mass;
-  const Vec3 offset = shared.centre - centre;
-  const Vec3 omega = angularVelocity(shared.inertia, m.angular - offset.cross(m.linear));
-  forRows(position.rows(), threads, [&](Index begin, Index end) {
-    for (Index i = begin; i < end; ++i) {
-      const double s = sigma[static_cast<size_t>(i)];
-      if (s == 0.0) continue;
-      const Vec3 rho = position.row(i).transpose() - shared.centre;
-      velocity.row(i) -= (s * (a + omega.cross(rho))).transpose();
-    }
-  });
-  removed.linear = m.linear;
-  removed.angular = offset.cross(m.linear) + shared.inertia * omega;
-  return removed;
-}
-
 }  // namespace zsculpt

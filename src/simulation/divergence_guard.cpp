@@ -22,15 +22,8 @@ DivergenceGuard::DivergenceGuard(const Simulation& sim) {
 
 double DivergenceGuard::energyOf(const Simulation& sim, const Diagnostics& diagnostics) {
   const PotentialEnergy& v = diagnostics.potential;
-  const double springs = v.radial + v.angular;
-  if (sim.elasticShareVaries()) {
-    // The rigid motion's kinetic energy, and the deformation's weighted by sigma_max /
-    // sigma_i with sigma_max times the springs': what the cycle keeps (it never grows).
-    const Simulation::DeformationKinetic d = sim.deformationKinetic();
-    const double top = sim.largestElasticShare();
-    return diagnostics.kinetic - d.plain + v.gravity + top * (d.weighted + springs);
-  }
   const double share = sim.uniformElasticShare();
+  const double springs = v.radial + v.angular;
   return diagnostics.kinetic + v.gravity + share * springs;  // 1 x springs is exact
 }
 
@@ -95,11 +88,7 @@ bool DivergenceGuard::afterStep(const Simulation& sim, const Diagnostics& diagno
     std::ostringstream msg;
     msg.precision(4);
     msg << "the energy ran away: " << energy << " J";
-    if (sim.elasticShareVaries())
-      msg << " (the rigid motion's kinetic energy plus " << sim.largestElasticShare()
-          << " times the deformation's, weighted by 1 / rigidity's elastic share, and the "
-             "springs')";
-    else if (sim.uniformElasticShare() < 1.0)
+    if (sim.uniformElasticShare() < 1.0)
       msg << " (the kinetic energy plus " << sim.uniformElasticShare() << " times the springs')";
     msg << ", more than " << kEnergyFactor << " times the start energy " << start_
         << " J plus the work put in, " << inflow_

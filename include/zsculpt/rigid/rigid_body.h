@@ -111,16 +111,4 @@ void addRigidVelocity(const MassProperties& properties, const RigidMomentum& mom
 RigidMomentum removeRigidMotion(const VectorX& mass, const MassProperties& properties,
                                 const Points& position, Points& velocity, int threads = 1);
 
-/// removeRigidMotion for a body whose vertices take velocity changes in proportion to their
-/// elastic share sigma_i (semi-rigid motion, section 4.3): takes out of `velocity` its
-/// momentum and its angular momentum about `centre`, both measured with `mass`, by
-/// v_i -= sigma_i (A + omega x (r_i - c_s)), the rigid motion fitted with the weights
-/// sigma_i m_i (`shared`: their mass properties, c_s its centre). A vertex with sigma_i = 0
-/// is left as it is, and the deformation's kinetic energy weighted by 1 / sigma_i (which the
-/// elastic step keeps with the springs' energy) does not grow. With every sigma_i = 1 this
-/// is removeRigidMotion. Returns the momenta removed.
-RigidMomentum removeSharedRigidMotion(const VectorX& mass, std::span<const double> sigma,
-                                      const MassProperties& shared, const Vec3& centre,
-                                      const Points& position, Points& velocity, int threads = 1);
-
 }  // namespace zsculpt

@@ -34,15 +34,14 @@ class DivergenceGuard {
   /// Starts from the simulation's present state and energy.
   explicit DivergenceGuard(const Simulation& sim);
 
-  /// The energy the guard watches: what the cycle keeps. Where every vertex has the same
-  /// elastic share sigma (Simulation::uniformElasticShare), the kinetic and gravitational
-  /// energy plus sigma times the springs': a stiffness-capped model (sigma = kappa_0 /
+  /// The energy the guard watches: the kinetic and gravitational energy plus sigma times
+  /// the springs' where every vertex has the same elastic share sigma
+  /// (Simulation::uniformElasticShare), else the total energy. With a uniform sigma the
+  /// deformation keeps K + sigma V, not K + V: a stiffness-capped model (sigma = kappa_0 /
   /// kappa) moving stably shows a total up to 1 / sigma times its start, which is not a
-  /// blow-up (a blow-up outgrows both). Where sigma varies (Simulation::elasticShareVaries),
-  /// the rigid motion's kinetic energy and gravity plus sigma_max times the deformation's
-  /// kinetic energy weighted by 1 / sigma_i and the springs' energy (the same sum for a
-  /// uniform sigma). Weighting the springs by the smallest sigma stopped stable models and
-  /// missed runaways where a region was fully rigid (sigma_min = 0: the springs unwatched).
+  /// blow-up (a blow-up outgrows both). A sigma that varies keeps no such sum; weighting by
+  /// the smallest sigma stopped stable models and missed runaways where a region was fully
+  /// rigid (sigma_min = 0: the springs unwatched).
   [[nodiscard]] static double energyOf(const Simulation& sim, const Diagnostics& diagnostics);
 
   /// The present state and energy become the new start, and both checkpoints: after a

@@ -211,22 +211,9 @@ class Simulation {
   /// sigma when every vertex has the same sigma_i, else 1 (and 1 without rigidity). The
   /// deformation feels sigma times the springs' forces, so it keeps the kinetic energy plus
   /// sigma times the springs' energy, not plus all of it (a capped model's springs may hold
-  /// a hundred times what the motion does). Where sigma varies: 1 (see elasticShareVaries).
+  /// a hundred times what the motion does). A sigma that varies keeps no such sum (sigma_i
+  /// f_i is no energy's gradient): 1, the total energy.
   [[nodiscard]] double uniformElasticShare() const { return uniformShare_; }
-  /// True when sigma_i varies from vertex to vertex (and some vertex is not fully rigid).
-  /// Then the deformation (the velocities u_i less the rigid motion) keeps, with the
-  /// springs' energy, its kinetic energy weighted by 1 / sigma_i: sum m_i |u_i|^2 /
-  /// (2 sigma_i) (docs/semi-rigid-and-constraints.md, "Rigidity that varies").
-  [[nodiscard]] bool elasticShareVaries() const { return sharedHandOver_; }
-  /// The largest sigma_i (1 without rigidity).
-  [[nodiscard]] double largestElasticShare() const { return largestShare_; }
-  /// The deformation's kinetic energy, sum m_i |u_i|^2 / 2, and the same weighted by
-  /// 1 / sigma_i (fully rigid vertices have none); both 0 without rigid motion.
-  struct DeformationKinetic {
-    double plain = 0.0;
-    double weighted = 0.0;
-  };
-  [[nodiscard]] DeformationKinetic deformationKinetic() const;
   /// P and L (about the centre of mass) carried by the rigid motion (zero when inactive).
   [[nodiscard]] const RigidMomentum& rigidMomentum() const { return rigidMomentum_; }
 
@@ -313,13 +300,10 @@ class Simulation {
   // Semi-rigid motion (section 4.3).
   std::vector<double> chi_, sigma_;
   double uniformShare_ = 1.0;
-  // Rigidity varies from vertex to vertex (and not every vertex is fully rigid): the
-  // deformation's momenta are taken out in proportion to sigma_i (removeSharedRigidMotion),
-  // with the weights sigma_i m_i in sharedMass_.
-  bool sharedHandOver_ = false;
-  double largestShare_ = 1.0;
-  VectorX sharedMass_;
-  void zeroFullyRigidRows(Points& velocity) const;
+  // Some vertices fully rigid (sigma = 0) and some not: their masses are 0 in elasticMass_.
+  bool someFullyRigid_ = false;
+  VectorX elasticMass_;
+  void holdFullyRigidVertices();
   // sum_i sigma_i f_i of the internal forces at the cycle's start (finishRigid).
   Vec3 startElasticShare_ = Vec3::Zero();
   [[nodiscard]] Vec3 elasticInternalShare(const Points& force) const;
