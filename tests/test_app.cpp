@@ -9,6 +9,7 @@
 #include <atomic>
 #include <chrono>
 #include <cmath>
+#include <csignal>
 #include <cstdlib>
 #include <cstring>
 #include <filesystem>
@@ -921,6 +922,58 @@ TEST(Recording, ReplayWritesTheFinalStateCsv) {
   const State read = io::loadState((dir / "out" / "final_state.csv").string(), 36);
   EXPECT_TRUE(sameBits(read.position, result.finalState.position));
   EXPECT_TRUE(fs::exists(dir / "out" / "diagnostics.csv"));
+  fs::remove_all(dir);
+}
+
+TEST(Recording, ASessionKilledOutrightLeavesAJournalThatReplays) {
+  // The recording is written on finish (or when the window closes, on SIGTERM too); a
+  // process killed outright (kill -9, a crash) wrote nothing and the session was lost. Every
+  // line also goes to "<path>.partial" as it is recorded, and the journal replays.
+  const fs::path dir = tempDir("killed_recording");
+  const std::string path = (dir / "r.jsonl").string();
+  const SessionSetup setup = gridSetup(6);
+  std::uint64_t pinCycle = 0;
+  {
+    Session session(setup);
+    session.apply(Play{});
+    for (int k = 0; k < 15; ++k) session.advance();
+    pinCycle = session.cycle();
+  }
+  const pid_t child = ::fork();
+  if (child == 0) {
+    Recorder recorder(path, setup);
+    recorder.record(0, Play{});
+    recorder.record(pinCycle, Pin{3, Vec3(0, 0, 1)});
+    ::raise(SIGKILL);  // no destructor, no finish
+    ::_exit(0);
+  }
+  int status = 0;
+  ASSERT_EQ(::waitpid(child, &status, 0), child);
+  ASSERT_TRUE(WIFSIGNALED(status));
+  EXPECT_FALSE(fs::exists(path));
+  ASSERT_TRUE(fs::exists(path + ".partial"));
+  const Recording journal = readRecording(path + ".partial");
+  ASSERT_TRUE(journal.setup.has_value());
+  ASSERT_EQ(journal.commands.size(), 2u);
+  EXPECT_EQ(journal.commands[1].cycle, pinCycle);
+  EXPECT_FALSE(journal.endCycle.has_value());
+  const ReplayResult replayed = replay(journal, ReplayOptions{});
+  EXPECT_EQ(replayed.cycles, pinCycle);
+  EXPECT_FALSE(replayed.matchesRecording.has_value());  // no footer: nothing to compare
+  // A session that ends normally leaves the recording and no journal.
+  {
+    Recorder recorder(path, setup);
+    recorder.record(0, Play{});
+    Session session(setup);
+    session.apply(Play{});
+    recorder.finish(session.cycle(), session.state());
+  }
+  EXPECT_TRUE(fs::exists(path));
+  EXPECT_FALSE(fs::exists(path + ".partial"));
+  {
+    Recorder recorder(path, setup);  // closed without finish (the window's error path)
+  }
+  EXPECT_FALSE(fs::exists(path + ".partial"));
   fs::remove_all(dir);
 }
 

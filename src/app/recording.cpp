@@ -1,5 +1,8 @@
 #include "zsculpt/app/recording.h"
 
+#include <fcntl.h>
+#include <unistd.h>
+
 #include <algorithm>
 #include <cerrno>
 #include <cmath>
@@ -227,14 +230,46 @@ Recorder::Recorder(std::string path, const SessionSetup& setup) : path_(std::mov
   text_ = h.dump() + "\n";
   // Fail early (before a whole session is lost) when the file cannot be written.
   io::checkOutputFile(path_);
+  // The journal: what a session killed outright leaves. Without one (a folder that takes
+  // the recording but not a second file) the session is recorded as before.
+  // A recording to a device or a pipe (/dev/null) is not one to recover: no journal.
+  std::error_code ec;
+  const auto kind = std::filesystem::status(path_, ec).type();
+  if (kind == std::filesystem::file_type::not_found || kind == std::filesystem::file_type::regular)
+    journal_ = ::open(journalPath().c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0644);
+  journal(text_);
 }
 
 Recorder::~Recorder() {
   if (finished_) return;
   try {
     write(false);
+    closeJournal(true);
   } catch (const std::exception&) {
-    // Destructors must not throw; finish() reports write errors.
+    // Destructors must not throw; finish() reports write errors. The journal stays.
+    closeJournal(false);
+  }
+}
+
+void Recorder::journal(const std::string& line) {
+  // One write a line: a process killed between two lines leaves whole lines.
+  for (std::size_t done = 0; journal_ >= 0 && done < line.size();) {
+    const ssize_t wrote = ::write(journal_, line.data() + done, line.size() - done);
+    if (wrote > 0) {
+      done += static_cast<std::size_t>(wrote);
+    } else if (!(wrote < 0 && errno == EINTR)) {
+      closeJournal(false);  // a full disk: keep what it holds, stop journaling
+    }
+  }
+}
+
+void Recorder::closeJournal(bool remove) {
+  if (journal_ < 0) return;
+  ::close(journal_);
+  journal_ = -1;
+  if (remove) {
+    std::error_code ec;
+    std::filesystem::remove(journalPath(), ec);
   }
 }
 
@@ -245,9 +280,11 @@ void Recorder::record(std::uint64_t cycle, const Command& command) {
   line["type"] = c.at("type");
   for (auto it = c.begin(); it != c.end(); ++it)
     if (it.key() != "type") line[it.key()] = it.value();
+  std::string text = line.dump();
+  text += '\n';
   std::lock_guard lock(mutex_);
-  text_ += line.dump();
-  text_ += '\n';
+  text_ += text;
+  journal(text);
 }
 
 void Recorder::finish(std::uint64_t endCycle, const State& finalState) {
@@ -261,6 +298,7 @@ void Recorder::finish(std::uint64_t endCycle, const State& finalState) {
   }
   write(true);
   finished_ = true;
+  closeJournal(true);
 }
 
 std::size_t Recorder::size() const {

@@ -62,7 +62,12 @@ nlohmann::json recordingHeader(const SessionSetup& setup, const std::string& rec
 Recording readRecording(const std::string& path);
 
 /// Collects the commands a solver applies and writes the recording atomically on finish().
-/// record() is called by the solver thread; finish() after it stopped.
+/// record() is called by the solver thread; finish() after it stopped. Until then every line
+/// is also appended, one write each, to a journal beside the recording (journalPath():
+/// "<path>.partial"), which finish() or the destructor removes once the recording is
+/// written: a session killed outright (kill -9, a crash, power lost after the system wrote
+/// it out) leaves the journal, a recording without a footer that replays to its last
+/// command.
 class Recorder {
  public:
   Recorder(std::string path, const SessionSetup& setup);
@@ -75,12 +80,16 @@ class Recorder {
   /// Appends the footer and writes the file atomically. Throws IOError "<path>: ...".
   void finish(std::uint64_t endCycle, const State& finalState);
   [[nodiscard]] const std::string& path() const { return path_; }
+  [[nodiscard]] std::string journalPath() const { return path_ + ".partial"; }
   [[nodiscard]] std::size_t size() const;
 
  private:
   void write(bool withFooter);
+  void journal(const std::string& line);
+  void closeJournal(bool remove);
 
   std::string path_;
+  int journal_ = -1;  // the journal's file descriptor, or -1 (none: it could not be made)
   mutable std::mutex mutex_;
   std::string text_;
   std::string footer_;
