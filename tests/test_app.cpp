@@ -960,6 +960,7 @@ TEST(Recording, ASessionKilledOutrightLeavesAJournalThatReplays) {
   const ReplayResult replayed = replay(journal, ReplayOptions{});
   EXPECT_EQ(replayed.cycles, pinCycle);
   EXPECT_FALSE(replayed.matchesRecording.has_value());  // no footer: nothing to compare
+  fs::remove(path + ".partial");                        // recovered
   // A session that ends normally leaves the recording and no journal.
   {
     Recorder recorder(path, setup);
@@ -974,6 +975,21 @@ TEST(Recording, ASessionKilledOutrightLeavesAJournalThatReplays) {
     Recorder recorder(path, setup);  // closed without finish (the window's error path)
   }
   EXPECT_FALSE(fs::exists(path + ".partial"));
+  // A new session beside a killed one's journal keeps it and journals under another name.
+  std::ofstream(path + ".partial") << "killed\n";
+  {
+    Recorder recorder(path, setup);
+    EXPECT_EQ(recorder.journalPath(), path + ".partial.2");
+    EXPECT_TRUE(fs::exists(path + ".partial.2"));
+  }
+  EXPECT_FALSE(fs::exists(path + ".partial.2"));
+  std::ifstream kept(path + ".partial");
+  std::string line;
+  std::getline(kept, line);
+  EXPECT_EQ(line, "killed");
+  // A recording to a device has no journal.
+  EXPECT_TRUE(Recorder("/dev/null", setup).journalPath().empty());
+  EXPECT_FALSE(fs::exists("/dev/null.partial"));
   fs::remove_all(dir);
 }
 

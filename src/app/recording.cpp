@@ -236,7 +236,17 @@ Recorder::Recorder(std::string path, const SessionSetup& setup) : path_(std::mov
   std::error_code ec;
   const auto kind = std::filesystem::status(path_, ec).type();
   if (kind == std::filesystem::file_type::not_found || kind == std::filesystem::file_type::regular)
-    journal_ = ::open(journalPath().c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0644);
+    for (int n = 1; n <= 99 && journal_ < 0; ++n) {
+      // An earlier session's journal (it was killed) is kept: the next free name is taken.
+      std::string name = path_;
+      name += ".partial";
+      if (n > 1) name += '.' + std::to_string(n);
+      journal_ = ::open(name.c_str(), O_WRONLY | O_CREAT | O_EXCL | O_CLOEXEC, 0644);
+      if (journal_ >= 0)
+        journalPath_ = name;
+      else if (errno != EEXIST)
+        break;
+    }
   journal(text_);
 }
 
@@ -269,7 +279,7 @@ void Recorder::closeJournal(bool remove) {
   journal_ = -1;
   if (remove) {
     std::error_code ec;
-    std::filesystem::remove(journalPath(), ec);
+    std::filesystem::remove(journalPath_, ec);
   }
 }
 

@@ -64,10 +64,11 @@ Recording readRecording(const std::string& path);
 /// Collects the commands a solver applies and writes the recording atomically on finish().
 /// record() is called by the solver thread; finish() after it stopped. Until then every line
 /// is also appended, one write each, to a journal beside the recording (journalPath():
-/// "<path>.partial"), which finish() or the destructor removes once the recording is
-/// written: a session killed outright (kill -9, a crash, power lost after the system wrote
-/// it out) leaves the journal, a recording without a footer that replays to its last
-/// command.
+/// "<path>.partial", or "<path>.partial.2", ".3", ... where an earlier session's journal
+/// is still there: it is never overwritten), which finish() or the destructor removes once
+/// the recording is written: a session killed outright (kill -9, a crash, power lost after
+/// the system wrote it out) leaves the journal, a recording without a footer that replays
+/// to its last command.
 class Recorder {
  public:
   Recorder(std::string path, const SessionSetup& setup);
@@ -80,7 +81,8 @@ class Recorder {
   /// Appends the footer and writes the file atomically. Throws IOError "<path>: ...".
   void finish(std::uint64_t endCycle, const State& finalState);
   [[nodiscard]] const std::string& path() const { return path_; }
-  [[nodiscard]] std::string journalPath() const { return path_ + ".partial"; }
+  /// Empty when there is no journal (a device such as /dev/null, or none could be made).
+  [[nodiscard]] const std::string& journalPath() const { return journalPath_; }
   [[nodiscard]] std::size_t size() const;
 
  private:
@@ -89,6 +91,7 @@ class Recorder {
   void closeJournal(bool remove);
 
   std::string path_;
+  std::string journalPath_;
   int journal_ = -1;  // the journal's file descriptor, or -1 (none: it could not be made)
   mutable std::mutex mutex_;
   std::string text_;
