@@ -2,6 +2,7 @@
 // picking, and (under Xvfb, when available) the window driven by a script.
 
 #include <gtest/gtest.h>
+#include <sys/resource.h>
 #include <sys/wait.h>
 #include <unistd.h>
 
@@ -993,6 +994,44 @@ TEST(Recording, ASessionKilledOutrightLeavesAJournalThatReplays) {
   fs::remove_all(dir);
 }
 
+TEST(Recording, AJournalCutShortByAFullDiskStillEndsOnAWholeLineAndReplays) {
+  // A write the disk could take only part of left the journal ending mid-line, and a replay
+  // refused the whole file (a review). A file size limit stands in for the full disk: the
+  // limit falls in the middle of the third command line.
+  const fs::path dir = tempDir("full_disk_journal");
+  const std::string path = (dir / "r.jsonl").string();
+  const SessionSetup setup = gridSetup(6);
+  const pid_t child = ::fork();
+  if (child == 0) {
+    std::signal(SIGXFSZ, SIG_IGN);  // a write past the limit fails with EFBIG instead
+    Recorder recorder(path, setup);
+    recorder.record(0, Play{});
+    const auto before = static_cast<rlim_t>(fs::file_size(recorder.journalPath()));
+    recorder.record(10, Pin{3, Vec3(0, 0, 1)});
+    const auto after = static_cast<rlim_t>(fs::file_size(recorder.journalPath()));
+    const rlim_t line = after - before;  // every pin line below is as long
+    rlimit limit{};
+    limit.rlim_cur = limit.rlim_max = after + line + line / 2;
+    if (::setrlimit(RLIMIT_FSIZE, &limit) != 0) ::_exit(3);
+    for (int k = 11; k < 20; ++k)
+      recorder.record(static_cast<std::uint64_t>(k), Pin{3, Vec3(0, 0, 1)});
+    ::raise(SIGKILL);  // killed with the disk still full
+    ::_exit(0);
+  }
+  int status = 0;
+  ASSERT_EQ(::waitpid(child, &status, 0), child);
+  ASSERT_TRUE(WIFSIGNALED(status)) << "exit " << WEXITSTATUS(status);
+  std::ifstream in(path + ".partial", std::ios::binary);
+  const std::string text((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  ASSERT_FALSE(text.empty());
+  EXPECT_EQ(text.back(), '\n');
+  const Recording journal = readRecording(path + ".partial");
+  ASSERT_EQ(journal.commands.size(), 3u);  // play and the two pins that fitted whole
+  EXPECT_EQ(journal.commands[2].cycle, 11u);
+  EXPECT_EQ(replay(journal, ReplayOptions{}).cycles, 11u);
+  fs::remove_all(dir);
+}
+
 TEST(Recording, MalformedRecordingsAreRefusedWithTheLine) {
   const fs::path dir = tempDir("bad_recording");
   auto write = [&](const std::string& text) {
@@ -1249,6 +1288,51 @@ TEST(Window, TheFilePanelOpensAMeshWithTheUpAxisChosen) {
                 .find("'sideways' is not an axis (auto, x, -x, y, -y, z or -z)"),
             std::string::npos)
       << readText(dir / "log.txt");
+}
+
+TEST(Window, OpeningASceneTheStepperRefusesKeepsTheSessionRunning) {
+  // A scene whose time step is out of the stepper's range (dt 1e-60 s, or a mass of 1e300 kg
+  // that puts half of T_max near 1e149 s) crashed the window: Open stopped the running session
+  // before the new one's stepper threw (a review). Now it is refused as a file that does not
+  // load, naming the file and the setting, and the model that was open stays.
+  ZSCULPT_SKIP_WITHOUT_WINDOW();
+  const fs::path dir = tempDir("window_open_refused");
+  {
+    std::ofstream(dir / "tiny_dt.json")
+        << R"({"mesh": "builtin:torus", "simulation": {"dt": 1e-60}})"
+        << "\n";
+    std::ofstream(dir / "heavy.json")
+        << R"({"mesh": "builtin:torus", "properties": {"mass": 1e300}})"
+        << "\n";
+  }
+  const fs::path script = dir / "open.jsonl";
+  {
+    std::ofstream out(script);
+    out << nlohmann::json{{"ui", "open"}, {"path", (dir / "tiny_dt.json").string()}}.dump() << "\n"
+        << nlohmann::json{{"ui", "open"}, {"path", (dir / "heavy.json").string()}}.dump() << "\n"
+        << "{\"ui\": \"save_scene\", \"path\": \"after.json\"}\n"
+        << "{\"ui\": \"quit\"}\n";
+  }
+  const std::string command = std::string("timeout 120 xvfb-run -a -s \"-screen 0 1280x800x24\" ") +
+                              ZSCULPT_BINARY + " open builtin:grid:5 --script " + script.string() +
+                              " --screenshot-out " + dir.string() + " > " +
+                              (dir / "log.txt").string() + " 2>&1";
+  const int raw = std::system(command.c_str());
+  ASSERT_TRUE(WIFEXITED(raw)) << readText(dir / "log.txt");
+  EXPECT_EQ(WEXITSTATUS(raw), 0) << readText(dir / "log.txt");
+  const std::string log = readText(dir / "log.txt");
+  EXPECT_NE(log.find("cannot open: " + (dir / "tiny_dt.json").string() +
+                     ": /simulation/dt: 1e-60 s is outside"),
+            std::string::npos)
+      << log;
+  EXPECT_NE(log.find("cannot open: " + (dir / "heavy.json").string() +
+                     ": the default time step (0.5 T_max): "),
+            std::string::npos)
+      << log;
+  EXPECT_EQ(log.find("opened "), std::string::npos) << log;
+  // The grid that was open is still the session's model, and it still runs to a save.
+  ASSERT_TRUE(fs::exists(dir / "after.json")) << log;
+  EXPECT_EQ(io::loadScene((dir / "after.json").string()).mesh, "builtin:grid:5");
 }
 
 TEST(Window, ScriptedDragAndPaintUnderXvfb) {

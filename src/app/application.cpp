@@ -149,7 +149,7 @@ Window::Window(SessionSetup setup, const WindowOptions& options) : options_(opti
   ImGui_ImplGlfw_InitForOpenGL(window_, true);
   ImGui_ImplOpenGL3_Init("#version 330 core");
 
-  startSession(std::move(setup), !options_.recordPath.empty());
+  startSession(std::make_unique<Session>(std::move(setup)), !options_.recordPath.empty());
 }
 
 Window::~Window() {
@@ -169,14 +169,14 @@ Window::~Window() {
   glfwTerminate();
 }
 
-void Window::startSession(SessionSetup setup, bool record) {
+void Window::startSession(std::unique_ptr<Session> session, bool record) {
+  const SessionSetup& setup = session->setup();
   source_ = setup.scene.sourcePath.empty() ? setup.scene.mesh : setup.scene.sourcePath;
   mesh_ = std::make_unique<Mesh>(setup.mesh);
   uniform_ = setup.scene.properties;
   const io::CameraSettings cameraSettings = setup.scene.camera;
   recorder_.reset();
   if (record) recorder_ = std::make_shared<Recorder>(options_.recordPath, setup);
-  auto session = std::make_unique<Session>(std::move(setup));
   const Snapshot* first = nullptr;
   SolverThreadOptions so;
   so.realTime = true;
@@ -251,11 +251,13 @@ void Window::stopSession() {
 }
 
 void Window::openModel(const std::string& path) {
-  // Load first: a file that does not load leaves the current model untouched.
-  SessionSetup setup;
+  // Load and build first: a file that does not load, or a model the stepper refuses (a time
+  // step out of range, say), leaves the current session running untouched.
+  std::unique_ptr<Session> session;
   try {
     const int choice = std::clamp(upChoice_, 0, static_cast<int>(std::size(kUpChoices)) - 1);
-    setup = loadSessionSetup(path, io::parseUpAxis(kUpChoices[choice]));
+    session =
+        std::make_unique<Session>(loadSessionSetup(path, io::parseUpAxis(kUpChoices[choice])));
   } catch (const Error& e) {
     message(std::string("cannot open: ") + e.what());
     return;
@@ -265,7 +267,7 @@ void Window::openModel(const std::string& path) {
   }
   if (recorder_) message("recording stopped: a recording holds one model");
   stopSession();
-  startSession(std::move(setup), false);
+  startSession(std::move(session), false);
   message("opened " + path);
 }
 

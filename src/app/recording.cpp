@@ -263,14 +263,22 @@ Recorder::~Recorder() {
 
 void Recorder::journal(const std::string& line) {
   // One write a line: a process killed between two lines leaves whole lines.
-  for (std::size_t done = 0; journal_ >= 0 && done < line.size();) {
+  std::size_t done = 0;
+  while (journal_ >= 0 && done < line.size()) {
     const ssize_t wrote = ::write(journal_, line.data() + done, line.size() - done);
     if (wrote > 0) {
       done += static_cast<std::size_t>(wrote);
     } else if (!(wrote < 0 && errno == EINTR)) {
-      closeJournal(false);  // a full disk: keep what it holds, stop journaling
+      // A full disk (or a file size limit): the part of the line that went out is cut off
+      // again, so that the journal ends on a whole line and replays; journaling stops.
+      if (::ftruncate(journal_, static_cast<off_t>(journalBytes_)) != 0) {
+        // Nothing more to do: a replay names the broken last line.
+      }
+      closeJournal(false);
+      return;
     }
   }
+  journalBytes_ += static_cast<std::int64_t>(done);
 }
 
 void Recorder::closeJournal(bool remove) {

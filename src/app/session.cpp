@@ -12,6 +12,7 @@
 #include "zsculpt/io/mesh_io.h"
 #include "zsculpt/io/scene_edits.h"
 #include "zsculpt/physics/matrices.h"
+#include "zsculpt/physics/stepper.h"
 #include "zsculpt/render/frame.h"
 
 namespace zsculpt::app {
@@ -67,7 +68,15 @@ double resolvePeriod(const io::SceneDescription& scene, const Model& model) {
   else
     period = scene.simulation.dtRatio.value_or(0.5) * tMax;
   // No stiffness at all (a free particle cloud): any step is stable; 10 ms as the CLI does.
-  if (!std::isfinite(period)) period = 0.01;
+  if (!std::isfinite(period) && !std::isfinite(tMax)) return 0.01;
+  // Refused here, naming the file and the setting, rather than by the stepper (the window's
+  // Open must learn of it before it stops the session it has).
+  const std::string file = scene.sourcePath.empty() ? scene.mesh : scene.sourcePath;
+  const std::string where = scene.simulation.dt ? file + ": /simulation/dt"
+                            : scene.simulation.dtRatio
+                                ? file + ": /simulation/dt_ratio"
+                                : file + ": the default time step (0.5 T_max)";
+  checkPeriodRange(period, where);
   return period;
 }
 

@@ -71,7 +71,7 @@ class Window {
 
  private:
   // Sessions.
-  void startSession(SessionSetup setup, bool record);
+  void startSession(std::unique_ptr<Session> session, bool record);
   void stopSession();
   void openModel(const std::string& path);
 

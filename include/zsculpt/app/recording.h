@@ -92,6 +92,7 @@ class Recorder {
 
   std::string path_;
   std::string journalPath_;
+  std::int64_t journalBytes_ = 0;  // the journal's length in whole lines
   int journal_ = -1;  // the journal's file descriptor, or -1 (none: it could not be made)
   mutable std::mutex mutex_;
   std::string text_;
