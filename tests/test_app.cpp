@@ -988,8 +988,23 @@ TEST(Recording, ASessionKilledOutrightLeavesAJournalThatReplays) {
   std::string line;
   std::getline(kept, line);
   EXPECT_EQ(line, "killed");
-  // A recording to a device has no journal.
+  // With every journal name taken there is none, and the recorder says why (the window
+  // shows it); a recording to a device has none, and nothing to say.
+  std::ofstream(path + ".partial.2") << "killed\n";
+  for (int n = 3; n <= 99; ++n) std::ofstream(path + ".partial." + std::to_string(n)) << "killed\n";
+  {
+    Recorder recorder(path, setup);
+    EXPECT_TRUE(recorder.journalPath().empty());
+    EXPECT_EQ(recorder.journalProblem(),
+              path +
+                  ".partial to .partial.99: all taken by journals of killed sessions (replay or "
+                  "remove them)");
+  }
+  std::ifstream last(path + ".partial.99");
+  std::getline(last, line);
+  EXPECT_EQ(line, "killed");
   EXPECT_TRUE(Recorder("/dev/null", setup).journalPath().empty());
+  EXPECT_TRUE(Recorder("/dev/null", setup).journalProblem().empty());
   EXPECT_FALSE(fs::exists("/dev/null.partial"));
   fs::remove_all(dir);
 }

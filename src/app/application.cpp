@@ -176,7 +176,12 @@ void Window::startSession(std::unique_ptr<Session> session, bool record) {
   uniform_ = setup.scene.properties;
   const io::CameraSettings cameraSettings = setup.scene.camera;
   recorder_.reset();
-  if (record) recorder_ = std::make_shared<Recorder>(options_.recordPath, setup);
+  if (record) {
+    recorder_ = std::make_shared<Recorder>(options_.recordPath, setup);
+    if (!recorder_->journalProblem().empty())
+      message("recording without a journal (" + recorder_->journalProblem() +
+              "): a session killed outright loses its recording");
+  }
   const Snapshot* first = nullptr;
   SolverThreadOptions so;
   so.realTime = true;

@@ -235,18 +235,33 @@ Recorder::Recorder(std::string path, const SessionSetup& setup) : path_(std::mov
   // A recording to a device or a pipe (/dev/null) is not one to recover: no journal.
   std::error_code ec;
   const auto kind = std::filesystem::status(path_, ec).type();
-  if (kind == std::filesystem::file_type::not_found || kind == std::filesystem::file_type::regular)
+  if (kind == std::filesystem::file_type::not_found ||
+      kind == std::filesystem::file_type::regular) {
+    std::string name;
+    int error = 0;
     for (int n = 1; n <= 99 && journal_ < 0; ++n) {
       // An earlier session's journal (it was killed) is kept: the next free name is taken.
-      std::string name = path_;
+      name = path_;
       name += ".partial";
       if (n > 1) name += '.' + std::to_string(n);
       journal_ = ::open(name.c_str(), O_WRONLY | O_CREAT | O_EXCL | O_CLOEXEC, 0644);
+      error = errno;
       if (journal_ >= 0)
         journalPath_ = name;
-      else if (errno != EEXIST)
+      else if (error != EEXIST)
         break;
     }
+    if (journal_ < 0 && error == EEXIST) {
+      journalProblem_ = path_;
+      journalProblem_ +=
+          ".partial to .partial.99: all taken by journals of killed sessions "
+          "(replay or remove them)";
+    } else if (journal_ < 0) {
+      journalProblem_ = name;
+      journalProblem_ += ": cannot create: ";
+      journalProblem_ += std::strerror(error);
+    }
+  }
   journal(text_);
 }
 

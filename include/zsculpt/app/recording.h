@@ -83,6 +83,9 @@ class Recorder {
   [[nodiscard]] const std::string& path() const { return path_; }
   /// Empty when there is no journal (a device such as /dev/null, or none could be made).
   [[nodiscard]] const std::string& journalPath() const { return journalPath_; }
+  /// Why a recording to a file has no journal ("<path>.partial: <reason>"), or empty: the
+  /// window says it, since a session killed outright then loses its recording.
+  [[nodiscard]] const std::string& journalProblem() const { return journalProblem_; }
   [[nodiscard]] std::size_t size() const;
 
  private:
@@ -92,6 +95,7 @@ class Recorder {
 
   std::string path_;
   std::string journalPath_;
+  std::string journalProblem_;
   std::int64_t journalBytes_ = 0;  // the journal's length in whole lines
   int journal_ = -1;  // the journal's file descriptor, or -1 (none: it could not be made)
   mutable std::mutex mutex_;
