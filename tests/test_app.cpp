@@ -1580,7 +1580,19 @@ TEST(Window, AScriptWithAnUnknownKeyOrMemberIsRefusedNamingItsLine) {
   const std::pair<const char*, const char*> cases[] = {
       {"{\"ui\": \"key\", \"key\": \"x\"}", ": line 2: key \"x\": not a shortcut (valid: z, "},
       {"{\"ui\": \"mouse_down\", \"at_vertx\": 3}",
-       ": line 2: mouse_down: unknown member \"at_vertx\" (valid: at_vertex, "}};
+       ": line 2: mouse_down: unknown member \"at_vertx\" (valid: at_vertex, "},
+      // A short pair was read past its end (a crash, the session lost); a vertex of 2^32
+      // wrapped to vertex 0 (a review).
+      {"{\"ui\": \"display\", \"range\": []}",
+       ": line 2: display: range: expected [min, max], two finite numbers, got []"},
+      {"{\"ui\": \"mouse_down\", \"at\": []}",
+       ": line 2: mouse_down: at: expected [x, y], two finite numbers, got []"},
+      {"{\"ui\": \"scroll\", \"offset\": [3], \"clicks\": 1}",
+       ": line 2: scroll: offset: expected [x, y], two finite numbers, got [3]"},
+      {"{\"ui\": \"probe\", \"vertex\": 4294967296}",
+       ": line 2: probe: vertex: expected a vertex number, got 4294967296"},
+      {"{\"ui\": \"mouse_down\", \"at_vertex\": -1}",
+       ": line 2: mouse_down: at_vertex: expected a vertex number, got -1"}};
   for (const auto& [line, expected] : cases) {
     const fs::path script = dir / "bad.jsonl";
     {
@@ -1596,6 +1608,33 @@ TEST(Window, AScriptWithAnUnknownKeyOrMemberIsRefusedNamingItsLine) {
     EXPECT_EQ(WEXITSTATUS(raw), 2) << readText(dir / "log.txt");
     EXPECT_NE(readText(dir / "log.txt").find(script.string() + expected), std::string::npos)
         << readText(dir / "log.txt");
+  }
+  fs::remove_all(dir);
+}
+
+TEST(Window, AWindowSizeTheDisplayOrContextCannotHaveIsRefusedInOneLine) {
+  // --size 40000x40000 ended in Xlib's six-line BadValue dump and exit 1; 16385 a side, over
+  // the context's limit, failed at every frame (and, refused, crashed: the renderer outlived
+  // its context). Both are now refused with exit 2, as render refuses them.
+  ZSCULPT_SKIP_WITHOUT_WINDOW();
+  const fs::path dir = tempDir("window_size");
+  { std::ofstream(dir / "quit.jsonl") << "{\"ui\": \"quit\"}\n"; }
+  const std::pair<const char*, const char*> cases[] = {
+      {"40000x40000",
+       "zsculpt: error: --size 40000x40000: larger than a window may be (32767 "
+       "pixels a side)\n"},
+      {"16385x800", "zsculpt: error: --size 16385x800: larger than this OpenGL context allows ("}};
+  for (const auto& [size, expected] : cases) {
+    const std::string command =
+        std::string("timeout 120 xvfb-run -a -s \"-screen 0 1280x800x24\" ") + ZSCULPT_BINARY +
+        " open builtin:grid:6 --script " + (dir / "quit.jsonl").string() + " --size " + size +
+        " > " + (dir / "log.txt").string() + " 2>&1";
+    const int raw = std::system(command.c_str());
+    ASSERT_TRUE(WIFEXITED(raw)) << readText(dir / "log.txt");
+    EXPECT_EQ(WEXITSTATUS(raw), 2) << readText(dir / "log.txt");
+    const std::string log = readText(dir / "log.txt");
+    EXPECT_EQ(log.rfind(expected, 0), 0u) << log;
+    EXPECT_EQ(std::count(log.begin(), log.end(), '\n'), 1) << log;
   }
   fs::remove_all(dir);
 }

@@ -155,6 +155,15 @@ TEST_F(Cli, AnOutputNamingOneOfTheRunsInputsIsRefusedAndTheInputKept) {
                          " --state-out " + quad),
                      2, "--state-out: " + quad + " is the model's file");
   EXPECT_FALSE(fs::exists(path("frames")));
+  // The window's script is an input too: --record or --state-out on it destroyed it (a
+  // review). Refused before any display is needed.
+  const std::string script = path("script.jsonl");
+  std::ofstream(script) << "{\"ui\": \"quit\"}\n";
+  expectOneLineError(run("open builtin:grid --script " + script + " --record " + script), 2,
+                     "--record: " + script + " is --script's file and would be overwritten");
+  expectOneLineError(run("open builtin:grid --script " + script + " --state-out " + script), 2,
+                     "--state-out: " + script + " is --script's file and would be overwritten");
+  EXPECT_EQ(slurp(script), "{\"ui\": \"quit\"}\n");
   EXPECT_EQ(slurp(quad), mesh);
   EXPECT_EQ(slurp(json), scene);
   EXPECT_EQ(slurp(csv), state);

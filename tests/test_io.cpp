@@ -984,6 +984,26 @@ TEST_F(AtomicFile, ViaWritesThroughATemporaryInTheSameFolder) {
   EXPECT_EQ(entries(), std::set<std::string>{"image.png"});
 }
 
+TEST_F(AtomicFile, ANameTooLongOrAFolderNoFileCanBeMadeInIsRefusedBeforeTheWork) {
+  // access() passed both, so a run (or a whole window session) did its work and then failed
+  // to write it (a review). The check leaves nothing behind where it passes.
+  const std::string longName = path(std::string(250, 'a') + ".csv");  // its temporary: > 255
+  std::string message = errorOf([&] { checkOutputFile(longName); });
+  expectUserError(message, longName);
+  EXPECT_NE(message.find("the file name is too long for its folder"), std::string::npos) << message;
+  const std::string longInMissing = path("missing/" + std::string(300, 'b') + ".csv");
+  message = errorOf([&] { checkOutputFile(longInMissing); });
+  EXPECT_NE(message.find("the file name is too long"), std::string::npos) << message;
+  EXPECT_FALSE(fs::exists(path("missing")));
+  message = errorOf([&] { checkOutputFile("/proc/zsculpt_state.csv"); });
+  EXPECT_NE(message.find("/proc/zsculpt_state.csv: cannot create a file in /proc"),
+            std::string::npos)
+      << message;
+  const std::string fine = path(std::string(200, 'c') + ".csv");
+  checkOutputFile(fine);
+  EXPECT_TRUE(entries().empty());  // the probe was removed
+}
+
 TEST_F(AtomicFile, MissingOrUnwritableFoldersGiveClearErrors) {
   // A missing folder is made by the write (checkOutputFile only checks it could be).
   const std::string missing = path("missing/a.txt");

@@ -262,6 +262,29 @@ TEST(Camera, RaysThroughPixelsHitTheProjectedPoints) {
   EXPECT_NEAR(centre.y(), 240.0, 1e-9);
 }
 
+TEST(Camera, ZoomAndPanStayWithinWhatASceneCanHold) {
+  // A wheel turned long enough took the distance to 0 or to infinity (and a pan the target
+  // to infinity); the window then saved a scene that nothing could load (a review).
+  Camera c;
+  c.distance = 5.0;
+  for (int k = 0; k < 10000; ++k) c.zoom(0.88);
+  EXPECT_EQ(c.distance, Camera::kNearest);
+  for (int k = 0; k < 10000; ++k) c.zoom(1.0 / 0.88);
+  EXPECT_EQ(c.distance, Camera::kFarthest);
+  c.distance = 1.5e308;  // a scene may hold this: zooming out keeps it, zooming in works
+  c.zoom(2.0);
+  EXPECT_EQ(c.distance, 1.5e308);
+  c.zoom(0.5);
+  EXPECT_EQ(c.distance, 0.75e308);
+  const Vec3 before = c.target;
+  c.pan(1.0, 1.0);  // would move by about 1e308: not made
+  EXPECT_EQ(c.target, before);
+  c.distance = 10.0;
+  c.pan(0.1, 0.0);
+  EXPECT_GT((c.target - before).norm(), 0.1);
+  EXPECT_TRUE(c.target.allFinite());
+}
+
 TEST(Camera, OrbitClampsPitchAndJsonRoundTrips) {
   Camera camera;
   camera.orbit(10.0, 500.0);

@@ -8,9 +8,11 @@
 #include <chrono>
 #include <cmath>
 #include <csignal>
+#include <cstdint>
 #include <filesystem>
 #include <fstream>
 #include <iostream>
+#include <limits>
 #include <map>
 #include <utility>
 #include <vector>
@@ -31,6 +33,10 @@ namespace zsculpt::app {
 namespace {
 
 namespace fs = std::filesystem;
+
+// The largest vertex number a script line may name (a larger one is no vertex of any mesh).
+constexpr std::uint64_t kMaxScriptVertex =
+    static_cast<std::uint64_t>(std::numeric_limits<Index>::max());
 
 constexpr unsigned kGlFramebuffer = 0x8D40;
 constexpr unsigned kGlBack = 0x0405;
@@ -98,6 +104,13 @@ Window::Window(SessionSetup setup, const WindowOptions& options) : options_(opti
   brush_.radius = 1.0;
   if (!options_.scriptPath.empty()) loadScript(options_.scriptPath);
 
+  // X11 sizes windows in 16 bits: a larger one is refused by the server with an error that
+  // Xlib's default handler turns into exit(1) with a dump of the request.
+  constexpr int kLargestWindowSide = 32767;
+  if (options_.width > kLargestWindowSide || options_.height > kLargestWindowSide)
+    throw InvalidInputError("--size " + std::to_string(options_.width) + "x" +
+                            std::to_string(options_.height) + ": larger than a window may be (" +
+                            std::to_string(kLargestWindowSide) + " pixels a side)");
   glfwSetErrorCallback(glfwError);
   if (glfwInit() == GLFW_FALSE)
     throw IOError("display: cannot open a window: " + glfwLastError() +
@@ -126,8 +139,13 @@ Window::Window(SessionSetup setup, const WindowOptions& options) : options_(opti
     renderer_ = std::make_unique<render::Renderer>([](const char* name) {
       return reinterpret_cast<render::GlProc>(glfwGetProcAddress(name));
     });
+    // The view is drawn offscreen at up to the window's size: a size the context cannot
+    // draw is refused here, in one line, not reported at every frame.
+    renderer_->checkSize(options_.width, options_.height, "--size");
   } catch (...) {
+    renderer_.reset();  // its GL objects go while their context is current
     glfwDestroyWindow(window_);
+    window_ = nullptr;
     glfwTerminate();
     throw;
   }
@@ -916,6 +934,24 @@ void Window::loadScript(const std::string& path) {
       const std::string valid = joinedNames(allowed, [](const std::string& m) { return m; });
       throw InvalidInputError(where + ": " + action + ": unknown member \"" + member +
                               "\" (valid: " + (valid.empty() ? "none" : valid) + ")");
+    }
+    // Pixel pairs and vertex numbers are checked here, before the window opens: a short
+    // array was read past its end (a crash), and a vertex of 2^32 wrapped to vertex 0.
+    for (const char* pair : {"at", "offset", "range"}) {
+      if (!j.contains(pair)) continue;
+      const nlohmann::json& v = j.at(pair);
+      if (!v.is_array() || v.size() != 2 || !v[0].is_number() || !v[1].is_number() ||
+          !std::isfinite(v[0].get<double>()) || !std::isfinite(v[1].get<double>()))
+        throw InvalidInputError(where + ": " + action + ": " + pair + ": expected [" +
+                                (std::string(pair) == "range" ? "min, max" : "x, y") +
+                                "], two finite numbers, got " + v.dump());
+    }
+    for (const char* vertex : {"at_vertex", "vertex"}) {
+      if (!j.contains(vertex)) continue;
+      const nlohmann::json& v = j.at(vertex);
+      if (!v.is_number_unsigned() || v.get<std::uint64_t>() > kMaxScriptVertex)
+        throw InvalidInputError(where + ": " + action + ": " + vertex +
+                                ": expected a vertex number, got " + v.dump());
     }
     if (action == "command") commandFromJson(j.at("command"), where + ": command");
     if (action == "tool") toolFromName(j.value("tool", std::string()));

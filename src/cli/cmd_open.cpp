@@ -35,7 +35,7 @@ app::SessionSetup makeSetup(const OpenOptions& o) {
   if (model.source.empty()) model.source = app::defaultScenePath();
   const LoadedModel loaded = model.load();
   checkOutputsSpareInputs({{"--record", &o.window.recordPath}, {"--state-out", &o.window.stateOut}},
-                          loaded, o.stateIn);
+                          loaded, o.stateIn, o.window.scriptPath);
   io::SceneDescription scene;
   if (loaded.scene) {
     scene = *loaded.scene;

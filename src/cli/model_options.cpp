@@ -199,7 +199,7 @@ void checkDistinctOutputs(
 
 void checkOutputsSpareInputs(
     std::initializer_list<std::pair<const char*, const std::string*>> outputs,
-    const LoadedModel& loaded, const std::string& stateIn) {
+    const LoadedModel& loaded, const std::string& stateIn, const std::string& script) {
   namespace fs = std::filesystem;
   // Only existing regular files can be overwritten: built-ins, devices and pipes cannot.
   auto fileOf = [](const std::string& path) -> std::optional<fs::path> {
@@ -214,6 +214,7 @@ void checkOutputsSpareInputs(
       inputs.emplace_back("the scene's mesh", *mesh);
   const std::optional<fs::path> state = fileOf(stateIn);
   if (state) inputs.emplace_back("--state-in's file", *state);
+  if (const auto scriptFile = fileOf(script)) inputs.emplace_back("--script's file", *scriptFile);
   for (const auto& [flag, path] : outputs) {
     const std::optional<fs::path> file = fileOf(*path);
     if (!file) continue;

@@ -95,11 +95,11 @@ void checkDistinctOutputs(
     std::initializer_list<std::pair<const char*, const std::string*>> outputs);
 
 /// An output naming one of the run's inputs would destroy it: InvalidInputError "<flag>:
-/// <path> is the model's file" (or the scene's mesh, or --state-in's file) "and would be
-/// overwritten". --state-out may name --state-in's file: a state carried on in place.
+/// <path> is the model's file" (or the scene's mesh, --state-in's file, --script's file) "and would
+/// be overwritten". --state-out may name --state-in's file: a state carried on in place.
 void checkOutputsSpareInputs(
     std::initializer_list<std::pair<const char*, const std::string*>> outputs,
-    const LoadedModel& loaded, const std::string& stateIn = "");
+    const LoadedModel& loaded, const std::string& stateIn = "", const std::string& script = "");
 
 /// After a run wrote `written` frames (frame_*.png) into `dir`: a warning on standard error
 /// when the folder holds others too (an earlier run's, which this one did not overwrite).

@@ -296,7 +296,40 @@ void checkOutputFile(const std::string& path) {
     if (!writable) fail(path, "not writable");
     return;
   }
-  checkCreatableDirectory(parentOf(target.path).string());
+  const fs::path parent = parentOf(target.path);
+  checkCreatableDirectory(parent.string());
+  // access() passes a name too long for the folder and, for root, a folder no file can be
+  // made in (/proc): the write failed only after the work. The save's temporary name is the
+  // longest name written, so that is what is checked; where the folder exists, a probe file
+  // of that name is made and removed.
+  const std::string temporary = temporaryName(target.path);
+  const std::string folder = parent.empty() ? std::string(".") : parent.string();
+  std::error_code ec;
+  if (fs::is_directory(folder, ec)) {
+    const int fd = ::open(temporary.c_str(), O_WRONLY | O_CREAT | O_EXCL | O_CLOEXEC, 0666);
+    if (fd < 0) {
+      const int error = errno;
+      if (error == ENAMETOOLONG)
+        fail(path, "the file name is too long for its folder (" +
+                       std::to_string(fs::path(target.path).filename().string().size()) +
+                       " bytes, and a save adds " +
+                       std::to_string(fs::path(temporary).filename().string().size() -
+                                      fs::path(target.path).filename().string().size()) +
+                       " to it for its temporary file)");
+      if (error != EEXIST)
+        fail(path, "cannot create a file in " + folder + ": " + errnoText(error));
+    } else {
+      ::close(fd);
+      ::unlink(temporary.c_str());
+    }
+  } else {
+    const long longest = ::pathconf(".", _PC_NAME_MAX);
+    const std::size_t length = fs::path(temporary).filename().string().size();
+    if (longest > 0 && length > static_cast<std::size_t>(longest))
+      fail(path, "the file name is too long (a save's temporary name would take " +
+                     std::to_string(length) + " bytes, more than the " + std::to_string(longest) +
+                     " a name may have)");
+  }
 }
 
 void checkCreatableDirectory(const std::string& dir) {

@@ -98,7 +98,9 @@ void Camera::orbit(double deltaYawDegrees, double deltaPitchDegrees) {
 }
 
 void Camera::zoom(double factor) {
-  if (factor > 0.0 && std::isfinite(factor)) distance *= factor;
+  if (factor > 0.0 && std::isfinite(factor))
+    distance =
+        std::clamp(distance * factor, std::min(kNearest, distance), std::max(kFarthest, distance));
 }
 
 void Camera::pan(double dxFraction, double dyFraction) {
@@ -106,7 +108,8 @@ void Camera::pan(double dxFraction, double dyFraction) {
   const Vec3 right = view.block<1, 3>(0, 0).transpose();
   const Vec3 up = view.block<1, 3>(1, 0).transpose();
   const double height = 2.0 * distance * std::tan(0.5 * fovYDegrees * kDegrees);
-  target += height * (dxFraction * right + dyFraction * up);
+  const Vec3 moved = target + height * (dxFraction * right + dyFraction * up);
+  if (moved.allFinite() && moved.cwiseAbs().maxCoeff() <= kFarthest) target = moved;
 }
 
 bool Camera::project(const Vec3& point, int width, int height, Eigen::Vector2d& pixel) const {

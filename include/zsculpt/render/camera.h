@@ -35,10 +35,15 @@ struct Camera {
   void frame(const BoundingBox& box, double aspect, double margin = 1.2);
   /// Turntable rotation; pitch is clamped to +-89 degrees.
   void orbit(double deltaYawDegrees, double deltaPitchDegrees);
-  /// Multiplies the distance (factor > 0).
+  /// Multiplies the distance (factor > 0), kept within [kNearest, kFarthest]: a wheel turned
+  /// long enough reached 0 or infinity, which a saved scene cannot hold.
   void zoom(double factor);
-  /// Moves the target in the view plane by fractions of the view height at the target.
+  /// Moves the target in the view plane by fractions of the view height at the target; a
+  /// move that would take a coordinate beyond kFarthest is not made.
   void pan(double dxFraction, double dyFraction);
+
+  static constexpr double kNearest = 1e-9;
+  static constexpr double kFarthest = 1e15;
 
   /// Pixel position (x right, y down, origin top left) of a world point in a width x height
   /// view; false when the point is behind the eye.
