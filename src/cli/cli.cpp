@@ -9,6 +9,7 @@
 #include <string>
 
 #include "commands.h"
+#include "model_options.h"
 #include "zsculpt/core/errors.h"
 
 namespace zsculpt::cli {
@@ -114,7 +115,9 @@ int run(int argc, char** argv) {
     std::cerr << "zsculpt: error: " << oneLine(e.what()) << "\n";
     return 2;
   } catch (const std::bad_alloc&) {
-    std::cerr << "zsculpt: error: out of memory\n";
+    const std::string& model = modelInWork();
+    std::cerr << "zsculpt: error: " << (model.empty() ? std::string() : oneLine(model) + ": ")
+              << "out of memory\n";
     return 2;
   } catch (const std::exception& e) {
     std::cerr << "zsculpt: error: " << oneLine(e.what()) << "\n";

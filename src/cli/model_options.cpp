@@ -106,9 +106,37 @@ LoadedModel ModelOptions::load() const {
                                       : source + ": /properties/rest_length_scale") +
           ": " + jsonNumber(u.restLengthScale) + " makes rest lengths too large to represent");
   }
+  {
+    // Angle springs grow with the square of a vertex's valence (one per pair of neighbours),
+    // and so do Omega^2's rows: a fan of 20,000 triangles about one vertex needs gigabytes.
+    // Out of memory anywhere after this, the error names the model and that vertex.
+    const CsrIndex& neighbours = mesh.vertexNeighborTable();
+    Index busiest = 0, valence = 0;
+    for (Index v = 0; v < mesh.numVertices(); ++v) {
+      const Index d = neighbours.rowSize(v);
+      if (d > valence) {
+        valence = d;
+        busiest = v;
+      }
+    }
+    std::string context = source;
+    if (valence > 1000) {
+      context += " (vertex ";
+      context += std::to_string(busiest);
+      context += " has ";
+      context += std::to_string(valence);
+      context += " neighbours: its angle springs, one per pair of them, grow with the square)";
+    }
+    modelInWork() = std::move(context);
+  }
   loaded.model = io::buildModel(scene, std::move(mesh));
   if (isScene) loaded.scene = std::move(scene);
   return loaded;
+}
+
+std::string& modelInWork() {
+  static std::string model;
+  return model;
 }
 
 void RunOptions::addTo(CLI::App* app) {

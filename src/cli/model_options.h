@@ -94,6 +94,10 @@ TimedLoad parseTimedLoad(const std::string& text, const std::string& flag);
 void checkDistinctOutputs(
     std::initializer_list<std::pair<const char*, const std::string*>> outputs);
 
+/// The model the command works on, as the last ModelOptions::load() named it, with a note on
+/// its busiest vertex where that may need much memory: an out-of-memory error names it.
+std::string& modelInWork();
+
 /// An output naming one of the run's inputs would destroy it: InvalidInputError "<flag>:
 /// <path> is the model's file" (or the scene's mesh, --state-in's file, --script's file) "and would
 /// be overwritten". --state-out may name --state-in's file: a state carried on in place.
