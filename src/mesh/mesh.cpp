@@ -1,6 +1,7 @@
 #include "zsculpt/mesh/mesh.h"
 
 #include <algorithm>
+#include <cstdint>
 #include <string>
 #include <unordered_map>
 
@@ -42,6 +43,9 @@ Mesh::Mesh(Points positions, const std::vector<std::vector<Index>>& faces,
   // Faces: validate and store as CSR.
   faces_.offsets.assign(1, 0);
   faces_.indices.clear();
+  // The face that last listed each vertex: a repeat is found in one pass over the corners
+  // (comparing every pair took 80 s on a polygon of 200,000 corners).
+  std::vector<std::int64_t> lastFace;
   for (size_t f = 0; f < faces.size(); ++f) {
     const auto& face = faces[f];
     if (face.size() < 3)
@@ -51,11 +55,12 @@ Mesh::Mesh(Points positions, const std::vector<std::vector<Index>>& faces,
         throw TopologyError("face " + std::to_string(f) + " refers to vertex " +
                             std::to_string(face[k]) + ", out of range [0, " + std::to_string(n) +
                             ")");
-      for (size_t l = 0; l < k; ++l) {
-        if (face[l] == face[k])
-          throw TopologyError("face " + std::to_string(f) + " repeats vertex " +
-                              std::to_string(face[k]));
-      }
+      if (lastFace.empty()) lastFace.assign(static_cast<size_t>(n), -1);
+      std::int64_t& seen = lastFace[static_cast<size_t>(face[k])];
+      if (seen == static_cast<std::int64_t>(f))
+        throw TopologyError("face " + std::to_string(f) + " repeats vertex " +
+                            std::to_string(face[k]));
+      seen = static_cast<std::int64_t>(f);
       faces_.indices.push_back(face[k]);
     }
     faces_.offsets.push_back(static_cast<Index>(faces_.indices.size()));
