@@ -1205,13 +1205,20 @@ ScriptLog readScriptLog(const fs::path& dir) {
 
 // `zsculpt open ARGS --script tests/data/app/SCRIPT --screenshot-out DIR` under Xvfb, its
 // output in DIR/log.txt; the exit status (timeout's 124 if it ran past two minutes).
-int runScriptedWindow(const std::string& args, const std::string& script, const fs::path& dir) {
+// `zsculpt open ARGS --script SCRIPT --screenshot-out DIR` under Xvfb, its output in
+// DIR/log.txt: the exit status, or -1 when it did not exit (a crash).
+int runWindowScript(const std::string& args, const fs::path& script, const fs::path& dir) {
   const std::string command = std::string("timeout 120 xvfb-run -a -s \"-screen 0 1280x800x24\" ") +
-                              ZSCULPT_BINARY + " open " + args + " --script " +
-                              ZSCULPT_TEST_DATA_DIR + "/app/" + script + " --screenshot-out " +
-                              dir.string() + " > " + (dir / "log.txt").string() + " 2>&1";
+                              ZSCULPT_BINARY + " open " + args + " --script " + script.string() +
+                              " --screenshot-out " + dir.string() + " > " +
+                              (dir / "log.txt").string() + " 2>&1";
   const int raw = std::system(command.c_str());
   return WIFEXITED(raw) ? WEXITSTATUS(raw) : -1;
+}
+
+// The same with a script of tests/data/app.
+int runScriptedWindow(const std::string& args, const std::string& script, const fs::path& dir) {
+  return runWindowScript(args, fs::path(ZSCULPT_TEST_DATA_DIR) / "app" / script, dir);
 }
 
 TEST(Window, AMeshOpenedWithUpRecordsAndSavesTheAxis) {
@@ -1328,13 +1335,7 @@ TEST(Window, OpeningASceneTheStepperRefusesKeepsTheSessionRunning) {
         << "{\"ui\": \"save_scene\", \"path\": \"after.json\"}\n"
         << "{\"ui\": \"quit\"}\n";
   }
-  const std::string command = std::string("timeout 120 xvfb-run -a -s \"-screen 0 1280x800x24\" ") +
-                              ZSCULPT_BINARY + " open builtin:grid:5 --script " + script.string() +
-                              " --screenshot-out " + dir.string() + " > " +
-                              (dir / "log.txt").string() + " 2>&1";
-  const int raw = std::system(command.c_str());
-  ASSERT_TRUE(WIFEXITED(raw)) << readText(dir / "log.txt");
-  EXPECT_EQ(WEXITSTATUS(raw), 0) << readText(dir / "log.txt");
+  EXPECT_EQ(runWindowScript("builtin:grid:5", script, dir), 0) << readText(dir / "log.txt");
   const std::string log = readText(dir / "log.txt");
   EXPECT_NE(log.find("cannot open: " + (dir / "tiny_dt.json").string() +
                      ": /simulation/dt: 1e-60 s is outside"),
@@ -1625,13 +1626,9 @@ TEST(Window, AWindowSizeTheDisplayOrContextCannotHaveIsRefusedInOneLine) {
        "pixels a side)\n"},
       {"16385x800", "zsculpt: error: --size 16385x800: larger than this OpenGL context allows ("}};
   for (const auto& [size, expected] : cases) {
-    const std::string command =
-        std::string("timeout 120 xvfb-run -a -s \"-screen 0 1280x800x24\" ") + ZSCULPT_BINARY +
-        " open builtin:grid:6 --script " + (dir / "quit.jsonl").string() + " --size " + size +
-        " > " + (dir / "log.txt").string() + " 2>&1";
-    const int raw = std::system(command.c_str());
-    ASSERT_TRUE(WIFEXITED(raw)) << readText(dir / "log.txt");
-    EXPECT_EQ(WEXITSTATUS(raw), 2) << readText(dir / "log.txt");
+    EXPECT_EQ(
+        runWindowScript(std::string("builtin:grid:6 --size ") + size, dir / "quit.jsonl", dir), 2)
+        << readText(dir / "log.txt");
     const std::string log = readText(dir / "log.txt");
     EXPECT_EQ(log.rfind(expected, 0), 0u) << log;
     EXPECT_EQ(std::count(log.begin(), log.end(), '\n'), 1) << log;

@@ -286,9 +286,8 @@ void Recorder::journal(const std::string& line) {
     } else if (!(wrote < 0 && errno == EINTR)) {
       // A full disk (or a file size limit): the part of the line that went out is cut off
       // again, so that the journal ends on a whole line and replays; journaling stops.
-      if (::ftruncate(journal_, static_cast<off_t>(journalBytes_)) != 0) {
-        // Nothing more to do: a replay names the broken last line.
-      }
+      // Should the cut fail too, a replay names the broken last line.
+      [[maybe_unused]] const int cut = ::ftruncate(journal_, static_cast<off_t>(journalBytes_));
       closeJournal(false);
       return;
     }

@@ -309,12 +309,11 @@ void checkOutputFile(const std::string& path) {
     const int fd = ::open(temporary.c_str(), O_WRONLY | O_CREAT | O_EXCL | O_CLOEXEC, 0666);
     if (fd < 0) {
       const int error = errno;
+      const std::size_t length = fs::path(target.path).filename().string().size();
       if (error == ENAMETOOLONG)
-        fail(path, "the file name is too long for its folder (" +
-                       std::to_string(fs::path(target.path).filename().string().size()) +
+        fail(path, "the file name is too long for its folder (" + std::to_string(length) +
                        " bytes, and a save adds " +
-                       std::to_string(fs::path(temporary).filename().string().size() -
-                                      fs::path(target.path).filename().string().size()) +
+                       std::to_string(fs::path(temporary).filename().string().size() - length) +
                        " to it for its temporary file)");
       if (error != EEXIST)
         fail(path, "cannot create a file in " + folder + ": " + errnoText(error));

@@ -44,8 +44,8 @@ Mesh::Mesh(Points positions, const std::vector<std::vector<Index>>& faces,
   faces_.offsets.assign(1, 0);
   faces_.indices.clear();
   // The face that last listed each vertex: a repeat is found in one pass over the corners
-  // (comparing every pair took 80 s on a polygon of 200,000 corners).
-  std::vector<std::int64_t> lastFace;
+  // (comparing every pair of a 200,000-corner polygon's took about 27 s).
+  std::vector<std::int64_t> lastFace(faces.empty() ? 0 : static_cast<size_t>(n), -1);
   for (size_t f = 0; f < faces.size(); ++f) {
     const auto& face = faces[f];
     if (face.size() < 3)
@@ -55,7 +55,6 @@ Mesh::Mesh(Points positions, const std::vector<std::vector<Index>>& faces,
         throw TopologyError("face " + std::to_string(f) + " refers to vertex " +
                             std::to_string(face[k]) + ", out of range [0, " + std::to_string(n) +
                             ")");
-      if (lastFace.empty()) lastFace.assign(static_cast<size_t>(n), -1);
       std::int64_t& seen = lastFace[static_cast<size_t>(face[k])];
       if (seen == static_cast<std::int64_t>(f))
         throw TopologyError("face " + std::to_string(f) + " repeats vertex " +

@@ -109,7 +109,9 @@ void Camera::pan(double dxFraction, double dyFraction) {
   const Vec3 up = view.block<1, 3>(1, 0).transpose();
   const double height = 2.0 * distance * std::tan(0.5 * fovYDegrees * kDegrees);
   const Vec3 moved = target + height * (dxFraction * right + dyFraction * up);
-  if (moved.allFinite() && moved.cwiseAbs().maxCoeff() <= kFarthest) target = moved;
+  // As zoom: a target already beyond kFarthest (a scene may hold one) may still come back.
+  const double limit = std::max(kFarthest, target.cwiseAbs().maxCoeff());
+  if (moved.allFinite() && moved.cwiseAbs().maxCoeff() <= limit) target = moved;
 }
 
 bool Camera::project(const Vec3& point, int width, int height, Eigen::Vector2d& pixel) const {
