@@ -474,6 +474,44 @@ TEST(Session, ASceneSavedAfterAResetAppliesItsTimedEditsOnce) {
   EXPECT_DOUBLE_EQ(reopened.model().properties.stiffness[0], 10.0);
 }
 
+TEST(Session, ResetKeepsThePinsASaveWouldWriteAndSaysWhichLoadsWent) {
+  // A review: Reset put the scene's pins back in place of the user's, without a word, so a
+  // modeller's pins vanished (and a scene saved with them no longer matched the window).
+  // Reset now starts again from what a save would write: the pins as they stand.
+  Session session(gridSetup(6));
+  const Vec3 start0 = session.state().position.row(0).transpose();
+  const Vec3 target(0.5, -0.25, 1.0);
+  session.apply(Pin{7, std::nullopt});
+  session.apply(Pin{0, target});
+  session.apply(AddLoad{LoadKind::Force, 20, Vec3(0, 0, 2), 10.0});
+  session.apply(Play{});
+  while (session.state().time < 0.5) session.advance();
+  const io::SceneDescription before = session.currentScene();
+  std::vector<std::string> notices;
+  session.takeNotices(notices);
+  notices.clear();
+  session.apply(Reset{});
+  EXPECT_EQ(session.state().time, 0.0);
+  EXPECT_EQ(session.state().position.row(0).transpose(), start0);
+  const std::vector<Index> pins = session.pins();
+  EXPECT_EQ(pins, (std::vector<Index>{7, 0}));
+  const io::SceneDescription after = session.currentScene();
+  ASSERT_EQ(after.constraints.size(), before.constraints.size());
+  for (size_t i = 0; i < after.constraints.size(); ++i) {
+    EXPECT_EQ(after.constraints[i].vertex, before.constraints[i].vertex);
+    EXPECT_EQ(after.constraints[i].target, before.constraints[i].target);
+  }
+  EXPECT_EQ(after.constraints[1].target, std::optional<Vec3>(target));
+  session.takeNotices(notices);
+  ASSERT_EQ(notices.size(), 1u);
+  EXPECT_NE(notices[0].find("the pins stay, and the 1 force or torque added with the tools"),
+            std::string::npos)
+      << notices[0];
+  // The pinned vertex is pulled to its target as the run goes on from the start.
+  while (session.state().time < 3.0) session.advance();
+  EXPECT_LT((session.state().position.row(0).transpose() - target).norm(), 1e-3);
+}
+
 TEST(Session, PaintingStiffnessChangesTheProperty) {
   Session session(gridSetup(8));
   Snapshot before;
@@ -1006,6 +1044,15 @@ TEST(Recording, ASessionKilledOutrightLeavesAJournalThatReplays) {
   EXPECT_TRUE(Recorder("/dev/null", setup).journalPath().empty());
   EXPECT_TRUE(Recorder("/dev/null", setup).journalProblem().empty());
   EXPECT_FALSE(fs::exists("/dev/null.partial"));
+  // A recording into a folder not made yet: the final save makes it, and so the journal
+  // makes it too, from the start (a review: it went without one, and a crash lost all).
+  {
+    const std::string nested = (dir / "new" / "deeper" / "rec.jsonl").string();
+    Recorder recorder(nested, setup);
+    EXPECT_TRUE(recorder.journalProblem().empty()) << recorder.journalProblem();
+    EXPECT_EQ(recorder.journalPath(), nested + ".partial");
+    EXPECT_TRUE(fs::exists(nested + ".partial"));
+  }
   fs::remove_all(dir);
 }
 
@@ -1529,6 +1576,32 @@ TEST(Window, APausedWaitIsSkippedAndPaintingShowsWhatItPaints) {
   const std::uint8_t *p = before.pixel(x, y), *q = after.pixel(x, y);
   EXPECT_GT(std::abs(p[0] - q[0]) + std::abs(p[1] - q[1]) + std::abs(p[2] - q[2]), 60);
   EXPECT_DOUBLE_EQ(probes["paint_after"].at("scalar").get<double>(), 3.0);
+  fs::remove_all(dir);
+}
+
+TEST(Window, TheTimeStepPanelShowsTheRunningRatioAndOffersApplyOnlyForAChange) {
+  // A review: after a set time step and an undo of paint (T_max moved, T did not) the
+  // slider kept its old ratio while the line under it gave the new one, and Apply stayed lit
+  // after every applied step (a float ratio times T_max compared with T at 1e-12).
+  ZSCULPT_SKIP_WITHOUT_WINDOW();
+  const fs::path dir = tempDir("window_time_step_panel");
+  ASSERT_EQ(runScriptedWindow("builtin:grid --damping 0.05", "time_step_panel.jsonl", dir), 0)
+      << readText(dir / "log.txt");
+  ScriptLog script = readScriptLog(dir);
+  EXPECT_TRUE(script.errors.empty()) << script.entries.dump();
+  for (const char* name : {"start", "set", "painted", "undone"}) {
+    ASSERT_TRUE(script.probes.count(name)) << name;
+    const nlohmann::json& p = script.probes[name];
+    const double period = p.at("period").get<double>(), tMax = p.at("t_max").get<double>();
+    EXPECT_EQ(p.at("time_step_slider").get<float>(), static_cast<float>(period / tMax)) << name;
+    EXPECT_FALSE(p.at("apply_time_step_enabled").get<bool>()) << name;
+  }
+  EXPECT_DOUBLE_EQ(script.probes["set"].at("period").get<double>(), 0.05);
+  // Painting stiffer lowered T_max (and T with it); the undo raised T_max again.
+  EXPECT_LT(script.probes["painted"].at("t_max").get<double>(),
+            script.probes["set"].at("t_max").get<double>());
+  EXPECT_DOUBLE_EQ(script.probes["undone"].at("t_max").get<double>(),
+                   script.probes["set"].at("t_max").get<double>());
   fs::remove_all(dir);
 }
 

@@ -532,6 +532,34 @@ TEST(Matrices, LanczosAgreesWithDenseOnUnequalProperties) {
   }
 }
 
+TEST(Matrices, LanczosOnALongChainStaysBetweenTheTrueValueAndGershgorinsBound) {
+  // A curve's chain crowds its top eigenvalues closest of all (a spacing of order
+  // (pi / n)^2): the iteration may run to its cap and fall back on Gershgorin's bound.
+  // Either way the value must lie between lambda_0 (less a settling error far below what
+  // T_max prints) and that bound, and the check of each Ritz value must stay linear in the
+  // steps (a full tridiagonal solve per check made a 200,000-vertex polygon take minutes).
+  Model model = withAngles(makeHelix(6000), 0.0);
+  for (Index v = 0; v < model.mesh.numVertices(); ++v)
+    model.properties.mass[v] = 0.3 + 0.05 * static_cast<double>((v * 7) % 9);
+  const SystemMatrices m(model);
+  const SparseRowMatrix& k = m.stiffness();
+  const Index n = static_cast<Index>(k.rows());
+  VectorX diagonal(n), subdiagonal(n - 1);
+  for (Index i = 0; i < n; ++i) {
+    diagonal[i] = k.coeff(i, i) * m.inverseMass()[i];
+    if (i + 1 < n)
+      subdiagonal[i] = k.coeff(i, i + 1) * std::sqrt(m.inverseMass()[i] * m.inverseMass()[i + 1]);
+  }
+  ASSERT_EQ(k.nonZeros(), 3 * n - 2) << "the helix is one open chain in vertex order";
+  Eigen::SelfAdjointEigenSolver<Eigen::MatrixXd> eig;
+  eig.computeFromTridiagonal(diagonal, subdiagonal, Eigen::EigenvaluesOnly);
+  const double exact = eig.eigenvalues().maxCoeff();
+  const double gershgorin = 2.0 * m.omega2().diagonal().maxCoeff();
+  const double lanczos = largestEigenvalue(m);
+  EXPECT_GE(lanczos, exact * (1.0 - 1e-8));
+  EXPECT_LE(lanczos, gershgorin);
+}
+
 TEST(Matrices, TransformationMatricesApproximateTheTrigonometricOnes) {
   const Model model = dodecahedron();
   const SystemMatrices m(model);

@@ -1153,7 +1153,11 @@ void Window::stepScript() {
                {"brush_strength", brush_.strength},
                {"running", s.running},
                {"cycle", s.cycle},
-               {"distance", camera_.distance}});
+               {"distance", camera_.distance},
+               {"period", s.period},
+               {"t_max", s.tMax},
+               {"time_step_slider", dtRatio_},
+               {"apply_time_step_enabled", timeStepPending_}});
       } else if (action == "save_scene" || action == "save_mesh") {
         // Relative paths are relative to the screenshot folder, so a script's outputs stay
         // together.

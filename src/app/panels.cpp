@@ -134,11 +134,16 @@ void Window::simulationPanel(const Snapshot& s) {
   help("Period key: one cycle");
   ImGui::SameLine();
   if (ImGui::Button("Reset")) push(Reset{});
-  help("Back to the initial state; painted properties stay (undo them with Ctrl+Z).");
+  help(
+      "Back to the start as a save and a reopen would have it: painted properties (undo them "
+      "with Ctrl+Z) and pins stay; forces and torques added with the tools go.");
 
-  if (s.scheme != seenScheme_ || s.period != seenPeriod_) {
+  // The slider follows what the session runs: a new step, scheme or T_max (painting, undo)
+  // resets it, so that it never shows a ratio other than the one in the line below it.
+  if (s.scheme != seenScheme_ || s.period != seenPeriod_ || s.tMax != seenTMax_) {
     seenScheme_ = s.scheme;
     seenPeriod_ = s.period;
+    seenTMax_ = s.tMax;
     schemeIndex_ = static_cast<int>(s.scheme);
     if (std::isfinite(s.tMax) && s.tMax > 0.0) dtRatio_ = static_cast<float>(s.period / s.tMax);
   }
@@ -160,8 +165,12 @@ void Window::simulationPanel(const Snapshot& s) {
       "The time step as a fraction of equation 5's critical period T_max. Above the "
       "scheme's stable limit the simulation diverges (it is then rolled back and paused).");
   const double period = dtRatio_ * s.tMax;
-  const bool changed = static_cast<int>(s.scheme) != schemeIndex_ ||
-                       (std::isfinite(period) && std::abs(period - s.period) > 1e-12 * s.period);
+  // Changed when the slider is not at the running ratio as the slider holds it (a float: a
+  // period compared with the float ratio times T_max differs by its rounding).
+  const bool changed =
+      static_cast<int>(s.scheme) != schemeIndex_ ||
+      (std::isfinite(period) && s.tMax > 0.0 && dtRatio_ != static_cast<float>(s.period / s.tMax));
+  timeStepPending_ = changed;
   if (!changed) ImGui::BeginDisabled();
   if (ImGui::Button("Apply time step")) {
     const double p = std::isfinite(period) && period > 0.0 ? period : s.period;

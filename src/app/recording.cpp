@@ -230,6 +230,10 @@ Recorder::Recorder(std::string path, const SessionSetup& setup) : path_(std::mov
   text_ = h.dump() + "\n";
   // Fail early (before a whole session is lost) when the file cannot be written.
   io::checkOutputFile(path_);
+  // The final save makes a missing folder; made now, it takes the journal from the start.
+  const std::filesystem::path folder = std::filesystem::path(path_).parent_path();
+  if (!folder.empty() && !std::filesystem::exists(folder))
+    io::ensureWritableDirectory(folder.string());
   // The journal: what a session killed outright leaves. Without one (a folder that takes
   // the recording but not a second file) the session is recorded as before.
   // A recording to a device or a pipe (/dev/null) is not one to recover: no journal.

@@ -150,7 +150,7 @@ Session::Session(SessionSetup setup)
   forces_ = baseForces_;
   torques_ = baseTorques_;
 
-  addSceneConstraints();
+  addConstraints(setup_.scene.constraints);
 
   guard_ = std::make_unique<DivergenceGuard>(*sim_);
   region_ = editing::BrushRegion(mesh);
@@ -160,9 +160,9 @@ Session::Session(SessionSetup setup)
 
 Session::~Session() = default;
 
-void Session::addSceneConstraints() {
+void Session::addConstraints(const std::vector<io::ConstraintSpec>& constraints) {
   const Index n = sim_->model().mesh.numVertices();
-  for (const io::ConstraintSpec& c : setup_.scene.constraints) {
+  for (const io::ConstraintSpec& c : constraints) {
     if (c.vertex < 0 || c.vertex >= n)
       throw InvalidInputError("constraint: " + vertexText(c.vertex) + " is out of range");
     if (c.type == io::ConstraintType::Position && c.target && c.start && c.end)
@@ -263,14 +263,27 @@ void Session::apply(const Command& command) {
                  [&](const Pause&) { running_ = false; },
                  [&](const StepOnce&) { stepRequest_ = true; },
                  [&](const Reset&) {
+                   // Back to the start as a save and a reopen would have it: the pins as
+                   // they stand now (the user's too: they are part of the scene a save
+                   // writes, and went without a word before), the painted properties, the
+                   // scene's loads on their schedule; the forces and torques added with the
+                   // tools were impulses of the run and go, with a notice.
+                   const std::vector<io::ConstraintSpec> pins = currentScene().constraints;
+                   const int added = toolLoads_;
+                   toolLoads_ = 0;
+                   endDrag();
                    sim_->setState(initial_);
                    forces_ = baseForces_;
                    torques_ = baseTorques_;
                    reloadLoads();
-                   endDrag();
                    sim_->clearConstraints();
-                   addSceneConstraints();
+                   addConstraints(pins);
                    guard_->restart(*sim_);
+                   if (added > 0)
+                     notices_.push_back("reset: back to the start; the pins stay, and the " +
+                                        std::to_string(added) +
+                                        (added == 1 ? " force or torque" : " forces and torques") +
+                                        " added with the tools went with the run");
                  },
                  [&](const SetTimeStep& s) {
                    if (s.scheme == sim_->stepper().scheme() && s.period == sim_->period()) return;
@@ -347,6 +360,7 @@ void Session::apply(const Command& command) {
                    std::erase_if(forces_, expired);
                    std::erase_if(torques_, expired);
                    reloadLoads();
+                   ++toolLoads_;
                    if (l.kind == LoadKind::Force) {
                      sim_->addForce(load);
                      forces_.push_back(load);
@@ -356,6 +370,7 @@ void Session::apply(const Command& command) {
                    }
                  },
                  [&](const ClearLoads&) {
+                   toolLoads_ = 0;
                    forces_.clear();
                    torques_.clear();
                    sim_->clearLoads();

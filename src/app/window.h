@@ -186,6 +186,8 @@ class Window {
   // sends back a stale choice.
   Scheme seenScheme_ = Scheme::Default;
   double seenPeriod_ = -1.0;
+  double seenTMax_ = -1.0;
+  bool timeStepPending_ = false;  // the panel's Apply time step is enabled (a probe logs it)
   Vec3 seenGravity_ = Vec3::Constant(std::numeric_limits<double>::quiet_NaN());
   double seenCap_ = -1.0;
   std::string pathField_;

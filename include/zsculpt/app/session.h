@@ -170,7 +170,7 @@ class Session {
   /// (a rebuild of the stepper, with a notice), so painting stiffness never makes the
   /// running model diverge. A softer model keeps its period.
   void keepPeriodFraction();
-  void addSceneConstraints();
+  void addConstraints(const std::vector<io::ConstraintSpec>& constraints);
   void endDrag();
   [[nodiscard]] bool isDragConstraint(const Constraint& c) const {
     return dragOwnsConstraint_ && c.id == dragId_;
@@ -185,6 +185,7 @@ class Session {
   // Loads: the scene's and the commands', with absolute start/end times.
   std::vector<TimedLoad> forces_, torques_;
   std::vector<TimedLoad> baseForces_, baseTorques_;  // the scene's, restored by Reset
+  int toolLoads_ = 0;  // loads added with the tools since the start (Reset drops them)
 
   // The drag: a position constraint of its own, or the vertex's pin when it has one (the
   // drag then moves the pin).
