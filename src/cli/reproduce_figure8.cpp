@@ -146,9 +146,8 @@ int reproduceFigure8(const ReproduceOptions& options) {
   }
   for (Index k = m.angles.vertexOffsets[1]; k < m.angles.vertexOffsets[2]; ++k) {
     const auto [c, a, b] = m.angles.angles[static_cast<size_t>(k)];
-    const double excess =
-        angleAt(final.row(c), final.row(a), final.row(b)) - m.properties.restAngle[k];
-    angularAtBlue += 0.5 * m.properties.angularStiffness[c] * excess * excess;
+    angularAtBlue += angleSpringEnergy(angleAt(final.row(c), final.row(a), final.row(b)),
+                                       m.properties.restAngle[k], m.properties.angularStiffness[c]);
   }
   double redDisplacement = 0.0;
   for (Index v : redPoints)

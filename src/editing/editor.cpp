@@ -270,8 +270,8 @@ EnergyChange Editor::termEnergy(const EditTarget& target, const State& state,
   }
   for (Index k : angleTerms_) {
     const auto [c, a, b] = target.angles.angles[static_cast<size_t>(k)];
-    const double excess = angleAt(x.row(c), x.row(a), x.row(b)) - p.restAngle[k];
-    energy.potential += 0.5 * p.angularStiffness[c] * excess * excess;
+    energy.potential += angleSpringEnergy(angleAt(x.row(c), x.row(a), x.row(b)), p.restAngle[k],
+                                          p.angularStiffness[c]);
   }
   if (property == Property::Mass)
     for (Index i : vertexTerms_) {

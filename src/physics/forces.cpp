@@ -117,12 +117,44 @@ inline void armsSinCos(double ux, double uy, double uz, double wx, double wy, do
   c = ux * wx + uy * wy + uz * wz;
 }
 
-// beta = (theta - theta_0) / sin(theta), theta = atan2(sin, cos) in [0, pi], and the excess
-// theta - theta_0 (the spring's energy is kappa_theta/2 excess^2); both zero when the sine is
-// 1e-12 or less (those angles are the caller's: angleSpringForce handles them). atan x and
-// 1 / sin with it cost one division (atanParts). The arms are unit vectors, so
-// max(|sin|, |cos|) >= 1/sqrt(2) and nothing under- or overflows.
-inline double angleBeta(double s, double c, double rest, double& excess) {
+// angleSpringProfile, branch-free (it vectorises in the kernels): the cap at straight
+// (p = pi - theta below eps = min(D / 2, kAngleCapWidth), D = pi - theta_0) or at folded
+// (p = theta, D = theta_0), else the plain spring. In a cap E / kappa = a + b p^2 + c p^4,
+// the even quartic that meets (p - D)^2 / 2 at p = eps with its value, slope and
+// curvature (C2, so that the schemes' error expansions hold through it): c = D / (8 eps^3),
+// b = (eps - 3 D / 2) / (2 eps), a = (eps - D)^2 / 2 - b eps^2 - c eps^4. Its curvature
+// runs from 2b (>= -2 at eps = D / 2) to 1: the cap is no stiffer than the spring.
+inline void angleProfile(double theta, double rest, double& slope, double& twiceEnergy) {
+  const double psi = kPi - theta, toStraight = kPi - rest;
+  const double epsStraight = std::min(0.5 * toStraight, kAngleCapWidth);
+  const double epsFolded = std::min(0.5 * rest, kAngleCapWidth);
+  const bool straight = psi < epsStraight;
+  const bool folded = theta < epsFolded;
+  const bool capped = straight || folded;
+  const double p = select(straight, psi, theta);
+  const double eps = select(capped, select(straight, epsStraight, epsFolded), 1.0);
+  const double d = select(straight, toStraight, rest);
+  const double inv = 1.0 / eps;  // the one division
+  const double c = 0.125 * d * inv * inv * inv;
+  const double b = 0.5 * (eps - 1.5 * d) * inv;
+  const double eps2 = eps * eps;
+  const double a = 0.5 * (eps - d) * (eps - d) - b * eps2 - c * eps2 * eps2;
+  const double p2 = p * p;
+  const double capSlope = p * (2.0 * b + 4.0 * c * p2);  // dE/dp / kappa
+  const double capTwice = 2.0 * (a + p2 * (b + c * p2));
+  const double excess = theta - rest;
+  // d/dtheta = -d/dp at straight, +d/dp at folded.
+  slope = select(straight, -capSlope, select(folded, capSlope, excess));
+  twiceEnergy = select(capped, capTwice, excess * excess);
+}
+
+// beta = slope / sin(theta), theta = atan2(sin, cos) in [0, pi] and slope angleProfile's
+// (theta - theta_0 away from its caps), and twiceEnergy (the spring's energy is
+// kappa_theta/2 twiceEnergy); both zero when the sine is 1e-12 or less (those angles are the
+// caller's: angleSpringForce handles them). atan x and 1 / sin with it cost one division
+// (atanParts), the profile one more. The arms are unit vectors, so max(|sin|, |cos|) >=
+// 1/sqrt(2) and nothing under- or overflows.
+inline double angleBeta(double s, double c, double rest, double& twiceEnergy) {
   bool sinLarger, reduce;
   double num, den, n2, pt, qt;
   atanParts(s, c, sinLarger, reduce, num, den, n2, pt, qt);
@@ -132,8 +164,10 @@ inline double angleBeta(double s, double c, double rest, double& excess) {
   const double inv = 1.0 / (denominator * safeSine);
   const double t0 = num * (qt + n2 * pt) * safeSine * inv;
   const double theta = angleFromAtan(t0, reduce, sinLarger, c);
-  excess = select(regular, theta - rest, 0.0);
-  return excess * (denominator * inv);
+  double slope, e2;
+  angleProfile(theta, rest, slope, e2);
+  twiceEnergy = select(regular, e2, 0.0);
+  return select(regular, slope, 0.0) * (denominator * inv);
 }
 
 // potentialEnergy's and gravityEnergy's sums are taken in this many fixed contiguous parts,
@@ -148,8 +182,10 @@ ZSCULPT_KERNEL void angleEnergies(Index m, const double* __restrict sineSquared,
                                   const double* __restrict rest, double* __restrict energy) {
 #pragma omp simd
   for (Index k = 0; k < m; ++k) {
-    const double excess = angleFromSinCos(std::sqrt(sineSquared[k]), cosine[k]) - rest[k];
-    energy[k] = 0.5 * kappa[k] * excess * excess;
+    double slope, twiceEnergy;
+    angleProfile(angleFromSinCos(std::sqrt(sineSquared[k]), cosine[k]), rest[k], slope,
+                 twiceEnergy);
+    energy[k] = 0.5 * kappa[k] * twiceEnergy;
   }
 }
 
@@ -214,20 +250,47 @@ Vec3 anyPerpendicular(const Vec3& v) {
 
 double angleSpringForce(const Vec3& centre, const Vec3& a, const Vec3& b, double kappa,
                         double restAngle, Vec3& forceOnCentre, Vec3& forceOnA, Vec3& forceOnB) {
-  const Vec3 u = a - centre;
-  const Vec3 w = b - centre;
-  const double lu = u.norm(), lw = w.norm();
-  if (kappa == 0.0 || lu == 0.0 || lw == 0.0) {
+  Vec3 gc, ga, gb;
+  if (kappa == 0.0 || !angleGradient(centre, a, b, gc, ga, gb)) {
     forceOnCentre.setZero();
     forceOnA.setZero();
     forceOnB.setZero();
     return 0.0;
   }
+  const Vec3 u = a - centre, w = b - centre;
+  const double theta = std::atan2(u.cross(w).norm(), u.dot(w));
+  double slope, twiceEnergy;
+  angleProfile(theta, restAngle, slope, twiceEnergy);
+  forceOnA = (-kappa * slope) * ga;
+  forceOnB = (-kappa * slope) * gb;
+  forceOnCentre = -(forceOnA + forceOnB);
+  return 0.5 * kappa * twiceEnergy;
+}
+
+void angleSpringProfile(double theta, double restAngle, double& slope, double& twiceEnergy) {
+  angleProfile(theta, restAngle, slope, twiceEnergy);
+}
+
+double angleSpringEnergy(double theta, double restAngle, double kappa) {
+  double slope, twiceEnergy;
+  angleProfile(theta, restAngle, slope, twiceEnergy);
+  return 0.5 * kappa * twiceEnergy;
+}
+
+bool angleGradient(const Vec3& centre, const Vec3& a, const Vec3& b, Vec3& gradCentre, Vec3& gradA,
+                   Vec3& gradB) {
+  const Vec3 u = a - centre;
+  const Vec3 w = b - centre;
+  const double lu = u.norm(), lw = w.norm();
+  if (lu == 0.0 || lw == 0.0) {
+    gradCentre.setZero();
+    gradA.setZero();
+    gradB.setZero();
+    return false;
+  }
   const Vec3 uh = u / lu, wh = w / lw;
   const double sinTheta = uh.cross(wh).norm();
   const double cosTheta = uh.dot(wh);
-  const double theta = std::atan2(sinTheta, cosTheta);
-  const double excess = theta - restAngle;
   // e_a: in the plane of the angle, perpendicular to u, towards w (d theta / d a = -e_a/|u|).
   Vec3 ea, eb;
   if (sinTheta > 1e-12) {
@@ -237,10 +300,10 @@ double angleSpringForce(const Vec3& centre, const Vec3& a, const Vec3& b, double
     ea = anyPerpendicular(uh);
     eb = cosTheta > 0.0 ? Vec3(-ea) : ea;  // theta ~ 0: arms together; theta ~ pi: opposite
   }
-  forceOnA = (kappa * excess / lu) * ea;
-  forceOnB = (kappa * excess / lw) * eb;
-  forceOnCentre = -(forceOnA + forceOnB);
-  return 0.5 * kappa * excess * excess;
+  gradA = -ea / lu;
+  gradB = -eb / lw;
+  gradCentre = -(gradA + gradB);
+  return true;
 }
 
 Vec3 torqueToForces(const Vec3& centre, std::span<const Vec3> neighbours, const Vec3& torque,
@@ -632,9 +695,9 @@ template <bool kEnergy>
   for (Index k = 0; k < m; ++k) {
     const double s = sine[k], c = cosine[k];
     smallest = std::min(smallest, s);
-    double excess;
-    const double beta = angleBeta(s, c, rest[k], excess);
-    if constexpr (kEnergy) excess2[k] = excess * excess;
+    double twiceEnergy;
+    const double beta = angleBeta(s, c, rest[k], twiceEnergy);
+    if constexpr (kEnergy) excess2[k] = twiceEnergy;
     const Index i = p[k], j = q[k];
     ZSCULPT_ANGLE_FORCE(beta, c, ax[i], ay[i], az[i], il[i], ax[j], ay[j], az[j], il[j], fax[k],
                         fay[k], faz[k], fbx[k], fby[k], fbz[k]);
@@ -703,9 +766,9 @@ template <bool kEnergy>
       const double s = std::sqrt(cx * cx + cy * cy + cz * cz);
       si[i] = s;
       smallest = std::min(smallest, s);
-      double excess;
-      const double beta = angleBeta(s, c, rest[k + pairs * i], excess);
-      if constexpr (kEnergy) excess2[i] += excess * excess;
+      double twiceEnergy;
+      const double beta = angleBeta(s, c, rest[k + pairs * i], twiceEnergy);
+      if constexpr (kEnergy) excess2[i] += twiceEnergy;
       double fa0, fa1, fa2, fb0, fb1, fb2;
       ZSCULPT_ANGLE_FORCE(beta, c, ux[i], uy[i], uz[i], iu[i], wx[i], wy[i], wz[i], iw[i], fa0, fa1,
                           fa2, fb0, fb1, fb2);

@@ -1408,24 +1408,6 @@ void Stepper::stepSymplecticEuler(State& s, const Points& external, std::span<co
   cacheValid_ = false;
 }
 
-namespace {
-
-// d theta / d(c, a, b) of the angle at c between arms to a and b (zero when degenerate).
-bool angleGradient(const Vec3& c, const Vec3& a, const Vec3& b, Vec3& gc, Vec3& ga, Vec3& gb) {
-  Vec3 fc, fa, fb;
-  // angleSpringForce with kappa = 1 and rest angle theta - 1 returns -grad(theta).
-  const Vec3 u = a - c, w = b - c;
-  if (u.norm() == 0.0 || w.norm() == 0.0) return false;
-  const double theta = std::atan2(u.cross(w).norm(), u.dot(w));
-  angleSpringForce(c, a, b, 1.0, theta - 1.0, fc, fa, fb);
-  gc = -fc;
-  ga = -fa;
-  gb = -fb;
-  return true;
-}
-
-}  // namespace
-
 void Stepper::stepImplicitEuler(State& s, const Points& external, std::span<const double> share) {
   // Baraff and Witkin 1998: (M + h D - h^2 J) dv = h (f0 - D v0 + h J v0), J the force
   // Jacobian: exact for radial springs with the compressive transverse term clamped at zero

@@ -33,16 +33,40 @@ double radialSpringForce(const Vec3& ri, const Vec3& rj, double kappa, double re
 /// The energy alone of a radial spring of length `length` (what radialSpringForce returns).
 double radialSpringEnergy(double length, double kappa, double restLength);
 
-/// Angle spring (section 5.2), energy kappa_theta/2 (theta - theta_0)^2 for the angle at
-/// `centre` between arms to `a` and `b`. Writes the forces on centre, a and b (summing to
-/// zero, with zero net torque) and returns the energy.
+/// The angle spring's profile (section 5.2): E = kappa_theta/2 (theta - theta_0)^2, except
+/// near a straight (theta = pi) or folded (theta = 0) angle its rest angle is not. An angle
+/// in [0, pi] is unsigned: a bend through straight is psi = pi - theta going to zero and
+/// back, so (theta - theta_0)^2 has a cone tip there, and the force jumps by 2 kappa_theta
+/// (pi - theta_0) whenever a vibrating sheet or curve passes through flat; explicit schemes
+/// pump energy into a gently curved model at each pass (a 3-degree bend: energy x10 in
+/// 60,000 steps). Within eps = min((pi - theta_0) / 2, kAngleCapWidth) of straight the
+/// energy is the quadratic in psi^2 that meets it with the same value and slope, a function
+/// of psi^2 and so smooth in the positions, and the same about theta = 0. slope is
+/// dE/dtheta / kappa_theta and twiceEnergy 2 E / kappa_theta (theta - theta_0 and its square
+/// away from the caps). docs/solver.md, "Angle springs through straight".
+void angleSpringProfile(double theta, double restAngle, double& slope, double& twiceEnergy);
+/// The widest cap (radians): a strongly bent rest angle (a cube's 90 degrees) keeps its
+/// profile up to 0.25 rad from straight, and the cap's curvature stays within
+/// (pi / 0.25) kappa_theta.
+inline constexpr double kAngleCapWidth = 0.25;
+/// kappa_theta times twiceEnergy / 2: the energy of an angle spring at `theta`.
+double angleSpringEnergy(double theta, double restAngle, double kappa);
+/// d theta / d(centre, a, b) of the angle at `centre` between the arms to `a` and `b`; false
+/// (and zeros) when an arm has no length. At theta = 0 or pi (sine <= 1e-12) the in-plane
+/// direction is undefined; a deterministic perpendicular one is taken.
+bool angleGradient(const Vec3& centre, const Vec3& a, const Vec3& b, Vec3& gradCentre, Vec3& gradA,
+                   Vec3& gradB);
+
+/// Angle spring (section 5.2), energy angleSpringProfile's for the angle at `centre` between
+/// arms to `a` and `b`. Writes the forces on centre, a and b (summing to zero, with zero net
+/// torque) and returns the energy.
 ///
 /// Differs from the paper's printed F = kappa (theta - theta_0) n x r_ij, which scales with
 /// d_ij sin(theta) and is not the gradient of any energy (so it cannot conserve energy): here
-/// F_a = kappa (theta - theta_0) e_a / |r_a - r_c|, e_a the unit vector in the plane of the
-/// angle, perpendicular to the arm, pointing towards the other arm. Near theta = 0 or pi the
-/// in-plane direction is undefined; the force stays finite (magnitude kappa |theta -
-/// theta_0| / d) and takes a deterministic perpendicular direction.
+/// F_a = -kappa slope(theta) d theta / d r_a = kappa slope e_a / |r_a - r_c|, e_a the unit
+/// vector in the plane of the angle, perpendicular to the arm, pointing towards the other
+/// arm. At theta = 0 or pi the slope is zero unless the rest angle is that angle too, so the
+/// force vanishes there, continuously.
 double angleSpringForce(const Vec3& centre, const Vec3& a, const Vec3& b, double kappa,
                         double restAngle, Vec3& forceOnCentre, Vec3& forceOnA, Vec3& forceOnB);
 
