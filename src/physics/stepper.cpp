@@ -601,6 +601,11 @@ void Stepper::setUpAffine(std::span<const Index> vertices) {
     affineMass_ = mass;
     affineGram_.setZero();
     affineStiffness_.setZero();
+    // One body: B spans the affine fields of the whole rest shape, so on a model of several
+    // parts P mixes them, and W = (I - P) Omega^2 (I - P) would couple parts no spring joins
+    // (a review: a cube moving past another at rest dragged it 1 m). Such models take the
+    // kick filter; per-part bases (rank 4 per part) are the fuller fix.
+    oneBody_ = model_.mesh.numComponents() <= 1;
   }
   // Rows whose Omega^2 B or mass changed: the edited vertices and their one-ring.
   const SparseRowMatrix& o2 = system_.omega2();
@@ -646,7 +651,7 @@ void Stepper::setUpAffine(std::span<const Index> vertices) {
   // motions Omega^2 calls stiff, and a drift filter would slow them (docs/solver.md).
   const VectorX& angular = model_.properties.angularStiffness;
   const std::vector<Index>& offsets = model_.angles.vertexOffsets;
-  braced_ = n > 0 && angular.size() == n && static_cast<Index>(offsets.size()) == n + 1;
+  braced_ = oneBody_ && n > 0 && angular.size() == n && static_cast<Index>(offsets.size()) == n + 1;
   for (Index i = 0; braced_ && i < n; ++i)
     braced_ =
         angular[i] > 0.0 && offsets[static_cast<size_t>(i) + 1] > offsets[static_cast<size_t>(i)];

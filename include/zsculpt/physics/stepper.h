@@ -193,7 +193,7 @@ class Stepper {
   /// model's masses change to have the step's.
   [[nodiscard]] const Points& lastTotalForce() const;
   /// Default scheme: whether the drift is filtered (StepperOptions::driftFilter on a model
-  /// braced by angle springs at every vertex).
+  /// braced by angle springs at every vertex, and of one connected piece).
   [[nodiscard]] bool filtersDrift() const { return braced_ && options_.driftFilter; }
   /// Default scheme with filtersDrift(): column l of the filter product Psi Phi (the end-of-step
   /// position moves by (T^2/2) sigma_l / mu_l times it per unit force held on vertex l), N long.
@@ -341,6 +341,7 @@ class Stepper {
                   affineStiffness_ = Eigen::Matrix4d::Zero();
   int affineRank_ = 0;
   bool braced_ = false;
+  bool oneBody_ = true;  // the mesh is one connected component (the drift filter's B is)
   std::vector<double> affinePartial_;
   std::array<double, 24> affineCoefficient_{};
   std::array<double, 12> velocityCoefficient_{};  // c of the velocity, which Psi's terms scale
