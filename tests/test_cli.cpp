@@ -698,6 +698,9 @@ TEST_F(Cli, AScenesErrorsNameTheJsonPath) {
   std::ofstream(path("fast.json"))
       << R"({"mesh": "builtin:dodecahedron", "simulation": {"dt": 10}})";
   expectOneLineError(run("simulate " + path("fast.json")), 2, "fast.json: /simulation/dt");
+  // The paper scheme's damping limit (equation 4's p = 1 - gamma T > 0) is named as such.
+  expectOneLineError(run("simulate builtin:dodecahedron --scheme paper --damping 10"), 2,
+                     "(equation 4: its damping factor 1 - gamma T must stay positive");
   // rest_length_scale 0 (linear springs), which --rest-length-scale 0 gives and a save
   // writes, opens.
   std::ofstream(path("linear.json"))

@@ -196,8 +196,10 @@ void Session::refreshLimits(bool tight) {
   tMax_ = criticalPeriod(system);
   const double maxDiagonal =
       system.omega2().size() > 0 ? system.omega2().diagonal().maxCoeff() : 0.0;
-  stableLimit_ = maxDiagonal > 0.0 ? stablePeriodLimit(sim_->stepper().scheme(), 2.0 * maxDiagonal)
-                                   : std::numeric_limits<double>::infinity();
+  const VectorX& g = system.dampingCoefficient();
+  const double dampingRate = g.size() > 0 ? g.maxCoeff() : 0.0;
+  stableLimit_ =
+      stablePeriodLimit(sim_->stepper().scheme(), std::max(2.0 * maxDiagonal, 0.0), dampingRate);
   // The period from Gershgorin's bound (which is never below lambda_0) is never above the
   // tight limit. For a period above it the largest
   // eigenvalue gives the tight one, as `zsculpt simulate` does, so that both give one limit;
@@ -205,7 +207,8 @@ void Session::refreshLimits(bool tight) {
   // the eigenvalue costs about half a second at 100k vertices and a dab must not.
   stableLimitTight_ = !(sim_->period() > stableLimit_);
   if (tight && !stableLimitTight_) {
-    stableLimit_ = stablePeriodLimit(sim_->stepper().scheme(), largestEigenvalue(system));
+    stableLimit_ =
+        stablePeriodLimit(sim_->stepper().scheme(), largestEigenvalue(system), dampingRate);
     stableLimitTight_ = true;
   }
   scalarStale_ = true;

@@ -391,10 +391,13 @@ RunOptions::Resolved RunOptions::resolve(const LoadedModel& loaded) const {
   }
   // Refuse a step above the scheme's stable limit. The Gerschgorin bound is cheap and never
   // above the tight one, so the eigenvalue is computed only when the step exceeds it.
-  const double cheapLimit =
-      stablePeriodLimit(r.settings.scheme, 2.0 * matrices.omega2().diagonal().maxCoeff());
+  const VectorX& g = matrices.dampingCoefficient();
+  const double dampingRate = g.size() > 0 ? g.maxCoeff() : 0.0;
+  const double cheapLimit = stablePeriodLimit(
+      r.settings.scheme, 2.0 * matrices.omega2().diagonal().maxCoeff(), dampingRate);
   if (period > cheapLimit) {
-    const double limit = stablePeriodLimit(r.settings.scheme, largestEigenvalue(matrices));
+    const double limit =
+        stablePeriodLimit(r.settings.scheme, largestEigenvalue(matrices), dampingRate);
     if (period > limit) {
       // Named where the step came from: a flag, or the scene's own dt or dt_ratio.
       const std::string source = dt                           ? std::string("--dt")
@@ -408,6 +411,10 @@ RunOptions::Resolved RunOptions::resolve(const LoadedModel& loaded) const {
       msg << source << ": time step " << period << " s (" << period / r.tMax
           << " T_max) is above the stable limit " << limit << " s (" << limit / r.tMax
           << " T_max) of scheme " << schemeName(r.settings.scheme);
+      if (dampingRate > 0.0 && limit == 1.0 / dampingRate)
+        msg << " (equation 4: its damping factor 1 - gamma T must stay positive, gamma = "
+               "damping / (2 mass) = "
+            << dampingRate << " /s at its most)";
       r.aboveStableLimit = msg.str();
       if (!allowUnstable)
         throw InvalidInputError(msg.str() + "; pass --allow-unstable to run it anyway");

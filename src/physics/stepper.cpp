@@ -47,8 +47,12 @@ Scheme schemeFromName(std::string_view name) {
                           "' (valid: default, paper, exact, symplectic-euler, implicit-euler)");
 }
 
-double stablePeriodLimit(Scheme scheme, double lambda0) {
+double stablePeriodLimit(Scheme scheme, double lambda0, double largestDampingRate) {
   constexpr double inf = std::numeric_limits<double>::infinity();
+  if (scheme == Scheme::Paper) {
+    const double spring = lambda0 > 0.0 ? std::sqrt(12.0 / lambda0) : inf;
+    return largestDampingRate > 0.0 ? std::min(spring, 1.0 / largestDampingRate) : spring;
+  }
   if (!(lambda0 > 0.0)) return inf;
   switch (scheme) {
     case Scheme::Default:

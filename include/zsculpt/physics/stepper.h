@@ -66,8 +66,12 @@ void checkPeriodRange(double period, const std::string& what);
 
 /// The largest stable period of a scheme for these matrices, from the largest eigenvalue
 /// lambda_0 of Omega^2 (infinite for exact and implicit-euler): sqrt(12 / lambda_0) for
-/// default and paper, sqrt(4 / lambda_0) for symplectic-euler.
-double stablePeriodLimit(Scheme scheme, double largestEigenvalue);
+/// default and paper, sqrt(4 / lambda_0) for symplectic-euler. The paper's scheme also
+/// keeps equation 4's p = 1 - gamma T > 0 at every vertex (gamma = rho / (2 mu), the
+/// vertex's G_ii), so its limit is at most 1 / largestDampingRate: its truncated damping
+/// runs away not far past that (a dodecahedron with 1 / gamma = 0.4 T_max decays at
+/// 0.55 T_max and is gone at 0.6), however far below sqrt(12 / lambda_0) the step is.
+double stablePeriodLimit(Scheme scheme, double largestEigenvalue, double largestDampingRate = 0.0);
 
 struct StepperOptions {
   /// Paper scheme: multiply by the stored two-ring matrices H, H', X, X' instead of
