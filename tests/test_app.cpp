@@ -26,6 +26,7 @@
 #include "zsculpt/app/recording.h"
 #include "zsculpt/app/session.h"
 #include "zsculpt/app/solver_thread.h"
+#include "zsculpt/app/text_wrap.h"
 #include "zsculpt/app/triple_buffer.h"
 #include "zsculpt/constraints/constraints.h"
 #include "zsculpt/core/errors.h"
@@ -1602,6 +1603,73 @@ TEST(Window, TheTimeStepPanelShowsTheRunningRatioAndOffersApplyOnlyForAChange) {
             script.probes["set"].at("t_max").get<double>());
   EXPECT_DOUBLE_EQ(script.probes["undone"].at("t_max").get<double>(),
                    script.probes["set"].at("t_max").get<double>());
+  fs::remove_all(dir);
+}
+
+TEST(TextWrap, MessagesBreakAtSpacesNeverInsideANumber) {
+  // ImGui's TextWrapped drew "... time step 0." over "05795 s ..." in the status line.
+  auto lines = [](std::string_view text, float width) {
+    std::vector<std::string> out;
+    auto measure = [](std::string_view t) { return static_cast<float>(t.size()); };
+    std::size_t start = 0;
+    do {
+      const std::string_view rest = text.substr(start);
+      const std::size_t end = wrapLineEnd(rest, width, measure);
+      out.emplace_back(rest.substr(0, end));
+      start += skipLineBreak(rest, end);
+    } while (start < text.size());
+    return out;
+  };
+  const std::string message =
+      "the edit lowered T_max to 0.1153 s: time step 0.05795 s -> 0.05765 s (0.5 T_max)";
+  // A width that ends inside "0.05795" breaks before it, not at its point.
+  const std::size_t at = message.find("0.05795");
+  const auto broken = lines(message, static_cast<float>(at + 3));
+  ASSERT_GE(broken.size(), 2u);
+  EXPECT_EQ(broken[0], "the edit lowered T_max to 0.1153 s: time step");
+  EXPECT_EQ(broken[1].rfind("0.05795 s", 0), 0u) << broken[1];
+  for (const std::string& line : broken) EXPECT_LE(line.size(), at + 3) << line;
+  // Nothing lost or doubled: the words, in order.
+  std::string joined;
+  for (const std::string& line : broken) joined += (joined.empty() ? "" : " ") + line;
+  EXPECT_EQ(joined, message);
+  // A word wider than the line gets a line of its own; newlines are kept; the text that fits
+  // is one line.
+  EXPECT_EQ(lines("saved /a/very/long/path.json now", 6.0f),
+            (std::vector<std::string>{"saved", "/a/very/long/path.json", "now"}));
+  EXPECT_EQ(lines("one\ntwo three", 100.0f), (std::vector<std::string>{"one", "two three"}));
+  EXPECT_EQ(lines("short", 100.0f), (std::vector<std::string>{"short"}));
+}
+
+TEST(Window, TheDampingSliderFollowsPaintAndThePlotsStartOverOnReset) {
+  // Known defects until session 34: the damping slider was set once at start, so after damping
+  // was painted it showed the old value and a touch of it silently replaced the paint; and
+  // the live plots kept the samples of the timeline a Reset or a rollback had left, joining
+  // them to the new one.
+  ZSCULPT_SKIP_WITHOUT_WINDOW();
+  const fs::path dir = tempDir("window_damping_and_plots");
+  ASSERT_EQ(runScriptedWindow("builtin:grid --damping 0.05 --perturb 0.05",
+                              "damping_and_plots.jsonl", dir),
+            0)
+      << readText(dir / "log.txt");
+  ScriptLog script = readScriptLog(dir);
+  EXPECT_TRUE(script.errors.empty()) << script.entries.dump();
+  for (const char* name : {"start", "painted", "undone", "played", "reset"})
+    ASSERT_TRUE(script.probes.count(name)) << name;
+  auto at = [&](const char* name, const char* field) { return script.probes[name].at(field); };
+  EXPECT_EQ(at("start", "damping_slider").get<float>(), 0.05f);
+  EXPECT_FALSE(at("start", "damping_painted").get<bool>());
+  // A dab of 0.5 on part of the grid: the slider shows the new mean and says it is painted.
+  const float painted = at("painted", "damping_slider").get<float>();
+  EXPECT_GT(painted, 0.05f);
+  EXPECT_LT(painted, 0.5f);
+  EXPECT_TRUE(at("painted", "damping_painted").get<bool>());
+  EXPECT_EQ(at("undone", "damping_slider").get<float>(), 0.05f);
+  EXPECT_FALSE(at("undone", "damping_painted").get<bool>());
+  // 80 cycles gave the plots many samples; Reset went back to time 0 and they started over.
+  const int played = at("played", "plot_samples").get<int>();
+  EXPECT_GE(played, 10);
+  EXPECT_LE(at("reset", "plot_samples").get<int>(), 3);
   fs::remove_all(dir);
 }
 

@@ -84,7 +84,9 @@ const char* nameOfTool(Tool tool) {
 
 }  // namespace
 
-void PlotSeries::push(const Diagnostics& d) {
+void PlotSeries::push(const Diagnostics& d, double time) {
+  if (count > 0 && time < lastTime) clear();
+  lastTime = time;
   kinetic[static_cast<size_t>(next)] = static_cast<float>(d.kinetic);
   potential[static_cast<size_t>(next)] = static_cast<float>(d.potential.total());
   total[static_cast<size_t>(next)] = static_cast<float>(d.total());
@@ -393,7 +395,7 @@ void Window::drawFrame() {
   const Snapshot& snap = solver_->latest();
   if (snap.serial != lastSerial_) {
     lastSerial_ = snap.serial;
-    plots_.push(snap.diagnostics);
+    plots_.push(snap.diagnostics, snap.time);
   }
 
   ImGui_ImplOpenGL3_NewFrame();
@@ -1157,6 +1159,13 @@ void Window::stepScript() {
                {"period", s.period},
                {"t_max", s.tMax},
                {"time_step_slider", dtRatio_},
+               {"damping_slider", damping_},
+               {"damping_painted", s.maxDamping > s.minDamping},
+               {"plot_samples", plots_.count},
+               {"plot_last_total",
+                plots_.count > 0 ? plots_.total[static_cast<size_t>(
+                                       (plots_.next + PlotSeries::kSize - 1) % PlotSeries::kSize)]
+                                 : 0.0f},
                {"apply_time_step_enabled", timeStepPending_}});
       } else if (action == "save_scene" || action == "save_mesh") {
         // Relative paths are relative to the screenshot folder, so a script's outputs stay

@@ -10,8 +10,10 @@
 #include <cstdio>
 #include <filesystem>
 #include <limits>
+#include <string_view>
 
 #include "window.h"
+#include "zsculpt/app/text_wrap.h"
 #include "zsculpt/core/errors.h"
 #include "zsculpt/io/mesh_io.h"
 
@@ -25,6 +27,22 @@ const char* kProperties[] = {"mass",     "damping",     "stiffness", "angular_st
 const char* kModes[] = {"set", "add", "multiply", "smooth"};
 const char* kFalloffs[] = {"smooth", "sphere", "linear", "sharp", "constant"};
 const char* kMaps[] = {"viridis", "diverging", "weight"};
+
+// TextWrapped that breaks lines at spaces only (text_wrap.h): no number is cut at its
+// decimal point. Draws substrings of the text: nothing is allocated per frame.
+void wrappedText(std::string_view text) {
+  const float width = std::max(1.0f, ImGui::GetContentRegionAvail().x);
+  auto measure = [](std::string_view t) {
+    return ImGui::CalcTextSize(t.data(), t.data() + t.size()).x;
+  };
+  std::size_t start = 0;
+  do {
+    const std::string_view rest = text.substr(start);
+    const std::size_t end = wrapLineEnd(rest, width, measure);
+    ImGui::TextUnformatted(rest.data(), rest.data() + end);
+    start += skipLineBreak(rest, end);
+  } while (start < text.size());
+}
 
 void help(const char* text) {
   if (ImGui::IsItemHovered()) {
@@ -43,8 +61,9 @@ std::string seconds(double s) {
   return text;
 }
 
-// PlotLines over a ring buffer: the oldest sample first, as wide as the panel. Returns where
-// it was drawn (window coordinates).
+// PlotLines over a ring buffer, the oldest sample first, as wide as the panel, under a line
+// with its label and newest value; the top and bottom of its range are written at its left
+// corners (its scale). Returns where the plot was drawn (window coordinates).
 std::array<float, 4> plot(const char* label, const std::array<float, PlotSeries::kSize>& data,
                           const PlotSeries& series, float width, float height) {
   const int count = series.count;
@@ -59,18 +78,34 @@ std::array<float, 4> plot(const char* label, const std::array<float, PlotSeries:
     hi += 0.5f * (std::abs(hi) + 1e-6f);
     lo -= 0.5f * (std::abs(lo) + 1e-6f);
   }
-  char overlay[96];
   const float last =
       count > 0
           ? data[static_cast<size_t>((series.next + PlotSeries::kSize - 1) % PlotSeries::kSize)]
           : 0.0f;
-  std::snprintf(overlay, sizeof overlay, "%s %.4g", label, static_cast<double>(last));
+  ImGui::BeginGroup();
+  // Every label at the height a SameLine after a plot gives (a framed item's text offset).
+  ImGui::AlignTextToFramePadding();
+  if (count > 0)
+    ImGui::Text("%s %.4g", label, static_cast<double>(last));
+  else
+    ImGui::TextUnformatted(label);
   // A width given, not -1: ImGui 1.86 (Debian 12's) takes a negative plot width literally, and
   // drew every plot as an empty sliver.
   char id[64];  // no string built per frame
   std::snprintf(id, sizeof id, "##%s", label);
-  ImGui::PlotLines(id, data.data(), count, offset, overlay, lo, hi, ImVec2(width, height));
+  ImGui::PlotLines(id, data.data(), count, offset, nullptr, lo, hi, ImVec2(width, height));
   const ImVec2 min = ImGui::GetItemRectMin(), max = ImGui::GetItemRectMax();
+  if (count > 0) {
+    char top[24], bottom[24];
+    std::snprintf(top, sizeof top, "%.3g", static_cast<double>(hi));
+    std::snprintf(bottom, sizeof bottom, "%.3g", static_cast<double>(lo));
+    ImDrawList* draw = ImGui::GetWindowDrawList();
+    const ImU32 dim = ImGui::GetColorU32(ImGuiCol_Text, 0.55f);
+    const float pad = 2.0f;
+    draw->AddText(ImVec2(min.x + pad, min.y + pad), dim, top);
+    draw->AddText(ImVec2(min.x + pad, max.y - pad - ImGui::GetTextLineHeight()), dim, bottom);
+  }
+  ImGui::EndGroup();
   return {min.x, min.y, max.x, max.y};
 }
 
@@ -109,7 +144,7 @@ void Window::panels() {
   // at the bottom of the sidebar is off screen on a small window.
   if (!log_.empty() && std::chrono::steady_clock::now() - lastMessageAt_ < kMessageShown) {
     ImGui::PushStyleColor(ImGuiCol_Text, ImVec4(0.15f, 0.25f, 0.6f, 1));
-    ImGui::TextWrapped("%s", log_.back().c_str());
+    wrappedText(log_.back());
     ImGui::PopStyleColor();
   }
 
@@ -193,8 +228,29 @@ void Window::simulationPanel(const Snapshot& s) {
   if (s.substeps > 1 && s.running)
     ImGui::Text("fast motion: each cycle taken in %d steps of T / %d", s.substeps, s.substeps);
 
-  ImGui::SliderFloat("damping", &damping_, 0.0f, 1.0f, "%.4f kg/s", ImGuiSliderFlags_Logarithmic);
-  help("rho of equation 1 on every vertex (a global edit: Ctrl+Z undoes it).");
+  // The slider follows the model's damping (a brush, undo, a global edit), except while it is
+  // held. Painted damping differs between vertices: the slider then says so and shows the
+  // mean, and moving it replaces the paint everywhere (a global edit, which Ctrl+Z undoes).
+  const bool dampingPainted = s.maxDamping > s.minDamping;
+  if ((s.minDamping != seenMinDamping_ || s.maxDamping != seenMaxDamping_) && !dampingHeld_) {
+    seenMinDamping_ = s.minDamping;
+    seenMaxDamping_ = s.maxDamping;
+    damping_ = static_cast<float>(s.meanDamping);
+  }
+  ImGui::SliderFloat("damping", &damping_, 0.0f, 1.0f,
+                     dampingPainted ? "painted, mean %.4f kg/s" : "%.4f kg/s",
+                     ImGuiSliderFlags_Logarithmic);
+  dampingHeld_ = ImGui::IsItemActive();
+  if (dampingPainted) {
+    char text[256];
+    std::snprintf(text, sizeof text,
+                  "rho of equation 1, painted: it varies over the vertices (%.4g to %.4g kg/s). "
+                  "Moving the slider sets every vertex to one value and replaces the paint "
+                  "(Ctrl+Z undoes it).",
+                  s.minDamping, s.maxDamping);
+    help(text);
+  } else
+    help("rho of equation 1 on every vertex (a global edit: Ctrl+Z undoes it).");
   if (ImGui::IsItemDeactivatedAfterEdit()) {
     editing::Brush b;
     b.property = Property::Damping;
@@ -405,8 +461,9 @@ void Window::plotStrip() {
   const float plotHeight = 48.0f;
   const ImGuiStyle& style = ImGui::GetStyle();
   ImGui::SetNextWindowPos(ImVec2(0.0f, 0.0f));
-  ImGui::SetNextWindowSize(ImVec2(std::max(1.0f, io.DisplaySize.x - sidebar),
-                                  plotHeight + 2.0f * style.WindowPadding.y));
+  ImGui::SetNextWindowSize(
+      ImVec2(std::max(1.0f, io.DisplaySize.x - sidebar),
+             ImGui::GetTextLineHeightWithSpacing() + plotHeight + 2.0f * style.WindowPadding.y));
   ImGui::SetNextWindowBgAlpha(0.7f);
   ImGui::Begin("plots", nullptr,
                ImGuiWindowFlags_NoMove | ImGuiWindowFlags_NoResize | ImGuiWindowFlags_NoCollapse |
@@ -429,9 +486,12 @@ void Window::plotStrip() {
     for (float& c : rect) c *= static_cast<float>(pixelScale_);
     if (ImGui::IsItemHovered())
       ImGui::SetTooltip(
-          i < 3    ? "%s (J): the last %d cycles"
-          : i == 3 ? "%s, linear momentum (kg m/s): the last %d cycles"
-                   : "%s, angular momentum about the centre of mass (kg m^2/s): the last %d cycles",
+          i < 3 ? "%s (J): the last %d samples (a sample a frame), since the start, a Reset or a "
+                  "rollback"
+          : i == 3
+              ? "%s, linear momentum (kg m/s): the last %d samples (a sample a frame)"
+              : "%s, angular momentum about the centre of mass (kg m^2/s): the last %d samples "
+                "(a sample a frame)",
           series[i].label, plots_.count);
   }
   ImGui::End();
@@ -489,7 +549,7 @@ void Window::filePanel(const Snapshot& s) {
 
 void Window::messagePanel() {
   ImGui::BeginChild("messages", ImVec2(0, 0), true);
-  for (const std::string& m : log_) ImGui::TextWrapped("%s", m.c_str());
+  for (const std::string& m : log_) wrappedText(m);
   if (ImGui::GetScrollY() >= ImGui::GetScrollMaxY() - 1.0f) ImGui::SetScrollHereY(1.0f);
   ImGui::EndChild();
 }

@@ -610,7 +610,10 @@ void Session::fill(Snapshot& out, Property scalarProperty) {
   out.substeps = sim_->substeps();
   out.gravity = model.properties.gravity;
   out.stiffnessCap = model.properties.stiffnessCap;
-  out.meanDamping = model.properties.damping.size() > 0 ? model.properties.damping.mean() : 0.0;
+  const VectorX& damping = model.properties.damping;
+  out.meanDamping = damping.size() > 0 ? damping.mean() : 0.0;
+  out.minDamping = damping.size() > 0 ? damping.minCoeff() : 0.0;
+  out.maxDamping = damping.size() > 0 ? damping.maxCoeff() : 0.0;
   out.undoDepth = editor_.undoDepth();
   out.redoDepth = editor_.redoDepth();
   out.unsaved = unsaved_;

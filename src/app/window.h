@@ -41,7 +41,11 @@ struct PlotSeries {
   std::array<float, kSize> kinetic{}, potential{}, total{}, momentum{}, angular{};
   int count = 0;
   int next = 0;
-  void push(const Diagnostics& d);
+  double lastTime = 0.0;  ///< simulated time of the newest sample
+  /// Adds the snapshot's sample; a simulated time earlier than the newest sample's (Reset, a
+  /// rollback after a divergence) starts the series over, so that no curve joins two
+  /// timelines.
+  void push(const Diagnostics& d, double time);
   void clear() { count = next = 0; }
 };
 
@@ -190,6 +194,8 @@ class Window {
   bool timeStepPending_ = false;  // the panel's Apply time step is enabled (a probe logs it)
   Vec3 seenGravity_ = Vec3::Constant(std::numeric_limits<double>::quiet_NaN());
   double seenCap_ = -1.0;
+  double seenMinDamping_ = -1.0, seenMaxDamping_ = -1.0;
+  bool dampingHeld_ = false;  // the damping slider is being dragged (it then follows no edit)
   std::string pathField_;
   // The Open field's up axis: an index into kUpChoices (0: auto).
   static constexpr const char* kUpChoices[] = {"auto", "y", "z", "x", "-x", "-y", "-z"};

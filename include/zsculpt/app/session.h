@@ -97,6 +97,9 @@ struct Snapshot {
   Vec3 gravity = Vec3::Zero();
   double stiffnessCap = 0.0;
   double meanDamping = 0.0;
+  /// The least and greatest damping over the vertices (they differ once damping is painted).
+  double minDamping = 0.0;
+  double maxDamping = 0.0;
   double solverSecondsPerStep = 0.0;  ///< moving average of the step's wall time
   double simOverWall = 0.0;           ///< simulated seconds per wall second (1 = real time)
   bool fallingBehind = false;         ///< running, and the solver cannot keep up with wall time
