@@ -1360,6 +1360,42 @@ TEST(Window, TheFilePanelOpensAMeshWithTheUpAxisChosen) {
       << readText(dir / "log.txt");
 }
 
+TEST(Window, AMeshOpenedFromTheFilePanelTakesTheFlagsTheWindowWasOpenedWith) {
+  // Until session 34 File > Open built a bare mesh with the default properties, dropping the
+  // --stiffness, --mass, --scheme ... the user had started the window with.
+  ZSCULPT_SKIP_WITHOUT_WINDOW();
+  const fs::path dir = tempDir("window_open_flags");
+  {
+    std::ofstream scene(dir / "own.json");
+    scene << R"({"mesh": "builtin:grid:3", "properties": {"stiffness": 2.5}})";
+    std::ofstream script(dir / "open.jsonl");
+    script << "{\"ui\": \"open\", \"path\": \"builtin:dodecahedron\"}\n"
+           << "{\"ui\": \"wait_frames\", \"frames\": 2}\n"
+           << "{\"ui\": \"probe\", \"vertex\": 0, \"name\": \"mesh\"}\n"
+           << nlohmann::json{{"ui", "open"}, {"path", (dir / "own.json").string()}}.dump() << "\n"
+           << "{\"ui\": \"wait_frames\", \"frames\": 2}\n"
+           << "{\"ui\": \"probe\", \"vertex\": 0, \"name\": \"scene\"}\n"
+           << "{\"ui\": \"quit\"}\n";
+  }
+  ASSERT_EQ(runWindowScript("builtin:grid --stiffness 7 --scheme symplectic-euler --dt-ratio 0.3",
+                            dir / "open.jsonl", dir),
+            0)
+      << readText(dir / "log.txt");
+  ScriptLog script = readScriptLog(dir);
+  EXPECT_TRUE(script.errors.empty()) << script.entries.dump();
+  ASSERT_TRUE(script.probes.count("mesh") && script.probes.count("scene"));
+  const nlohmann::json& mesh = script.probes["mesh"];
+  EXPECT_EQ(mesh.at("scalar").get<double>(), 7.0);  // the display colours by stiffness
+  EXPECT_EQ(mesh.at("scheme").get<std::string>(), "symplectic-euler");
+  EXPECT_NEAR(mesh.at("period").get<double>() / mesh.at("t_max").get<double>(), 0.3, 1e-12);
+  // A scene keeps its own properties and settings.
+  const nlohmann::json& scene = script.probes["scene"];
+  EXPECT_EQ(scene.at("scalar").get<double>(), 2.5);
+  EXPECT_EQ(scene.at("scheme").get<std::string>(), "default");
+  EXPECT_NEAR(scene.at("period").get<double>() / scene.at("t_max").get<double>(), 0.5, 1e-12);
+  fs::remove_all(dir);
+}
+
 TEST(Window, OpeningASceneTheStepperRefusesKeepsTheSessionRunning) {
   // A scene whose time step is out of the stepper's range (dt 1e-60 s, or a mass of 1e300 kg
   // that puts half of T_max near 1e149 s) crashed the window: Open stopped the running session

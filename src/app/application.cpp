@@ -281,8 +281,12 @@ void Window::openModel(const std::string& path) {
   std::unique_ptr<Session> session;
   try {
     const int choice = std::clamp(upChoice_, 0, static_cast<int>(std::size(kUpChoices)) - 1);
-    session =
-        std::make_unique<Session>(loadSessionSetup(path, io::parseUpAxis(kUpChoices[choice])));
+    io::SceneDescription defaults;
+    defaults.properties = options_.meshProperties;
+    defaults.simulation.scheme = options_.meshScheme;
+    defaults.simulation.dtRatio = options_.meshDtRatio;
+    session = std::make_unique<Session>(
+        loadSessionSetup(path, io::parseUpAxis(kUpChoices[choice]), &defaults));
   } catch (const Error& e) {
     message(std::string("cannot open: ") + e.what());
     return;
@@ -1159,6 +1163,7 @@ void Window::stepScript() {
                {"period", s.period},
                {"t_max", s.tMax},
                {"time_step_slider", dtRatio_},
+               {"scheme", std::string(schemeName(s.scheme))},
                {"damping_slider", damping_},
                {"damping_painted", s.maxDamping > s.minDamping},
                {"plot_samples", plots_.count},

@@ -92,12 +92,18 @@ SessionSetup sessionSetupFromScene(io::SceneDescription scene) {
   return setup;
 }
 
-SessionSetup loadSessionSetup(const std::string& source, io::UpAxis up) {
+SessionSetup loadSessionSetup(const std::string& source, io::UpAxis up,
+                              const io::SceneDescription* meshDefaults) {
   io::SceneDescription scene;
-  if (io::isSceneFileName(source))
+  if (io::isSceneFileName(source)) {
     scene = io::loadScene(source);
-  else
+  } else {
+    if (meshDefaults) {
+      scene.properties = meshDefaults->properties;
+      scene.simulation = meshDefaults->simulation;
+    }
     scene.mesh = source;
+  }
   if (up != io::UpAxis::Auto) scene.up = up;
   return sessionSetupFromScene(std::move(scene));
 }

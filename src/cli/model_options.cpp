@@ -37,17 +37,7 @@ void ModelOptions::addTo(CLI::App* app, bool sourceOptional) {
                   "(default auto: y for glTF and Collada, the file's for FBX, z for the rest)");
 }
 
-LoadedModel ModelOptions::load() const {
-  LoadedModel loaded;
-  loaded.source = source;
-  io::SceneDescription scene;
-  const bool isScene = io::isSceneFileName(source);
-  if (isScene) {
-    scene = io::loadScene(source);
-  } else {
-    scene.mesh = source;
-  }
-  UniformProperties& u = scene.properties;
+UniformProperties ModelOptions::withFlags(UniformProperties u) const {
   auto flag = [](const std::optional<double>& value, double& target, Property property,
                  const char* name) {
     if (!value) return;
@@ -75,6 +65,21 @@ LoadedModel ModelOptions::load() const {
     u.gravity = Vec3(gravity[0], gravity[1], gravity[2]);
     if (!u.gravity.allFinite()) throw InvalidInputError("--gravity: not finite");
   }
+  return u;
+}
+
+LoadedModel ModelOptions::load() const {
+  LoadedModel loaded;
+  loaded.source = source;
+  io::SceneDescription scene;
+  const bool isScene = io::isSceneFileName(source);
+  if (isScene) {
+    scene = io::loadScene(source);
+  } else {
+    scene.mesh = source;
+  }
+  scene.properties = withFlags(scene.properties);
+  const UniformProperties& u = scene.properties;
   if (!up.empty()) {
     try {
       scene.up = io::parseUpAxis(up);

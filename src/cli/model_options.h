@@ -35,6 +35,9 @@ struct ModelOptions {
   /// Registers the positional MESH|SCENE (required unless `sourceOptional`) and the flags.
   void addTo(CLI::App* app, bool sourceOptional = false);
   [[nodiscard]] LoadedModel load() const;
+  /// `values` with the property flags given (--mass ... --gravity) put over them; throws
+  /// InvalidInputError naming a flag whose value is out of range.
+  [[nodiscard]] UniformProperties withFlags(UniformProperties values) const;
 };
 
 /// How long and how finely to simulate, and what acts on the model.

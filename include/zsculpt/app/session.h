@@ -45,8 +45,11 @@ struct SessionSetup {
 /// Resolves a MESH|SCENE the way the command line does: a scene's own simulation settings,
 /// else the default scheme at half of equation 5's T_max (0.01 s for a model without
 /// stiffness). Throws as io::loadScene / io::loadMeshSource / io::buildModel do. `up` other
-/// than Auto replaces the scene's up axis (the window's Open, the --up flag).
-SessionSetup loadSessionSetup(const std::string& source, io::UpAxis up = io::UpAxis::Auto);
+/// than Auto replaces the scene's up axis (the window's Open, the --up flag). A bare mesh
+/// takes `meshDefaults`' properties and simulation settings when given (the flags the window
+/// was opened with); a scene keeps its own.
+SessionSetup loadSessionSetup(const std::string& source, io::UpAxis up = io::UpAxis::Auto,
+                              const io::SceneDescription* meshDefaults = nullptr);
 /// The same from a scene already read (`scene.mesh` is loaded). The scene's up axis becomes
 /// the one the mesh was turned by (an Auto resolved by the file's format), so that a save or
 /// a recording reloads the mesh as it was loaded here.
