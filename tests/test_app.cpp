@@ -1396,6 +1396,30 @@ TEST(Window, AMeshOpenedFromTheFilePanelTakesTheFlagsTheWindowWasOpenedWith) {
   fs::remove_all(dir);
 }
 
+TEST(Window, EveryLoadActingNowIsLabelledWithItsSize) {
+  // The arrows share one scale (the largest a fifth of the model), so without a label a
+  // user could not tell 1 N from 1000 N. A load not yet acting has no label.
+  ZSCULPT_SKIP_WITHOUT_WINDOW();
+  const fs::path dir = tempDir("window_load_labels");
+  {
+    std::ofstream script(dir / "loads.jsonl");
+    script << "{\"ui\": \"wait_frames\", \"frames\": 3}\n"
+           << "{\"ui\": \"probe\", \"vertex\": 0, \"name\": \"loads\"}\n"
+           << "{\"ui\": \"quit\"}\n";
+  }
+  ASSERT_EQ(
+      runWindowScript("builtin:grid --force 12:0,3,4 --force 20:1,0,0:5:6 --torque 30:0,0,0.5",
+                      dir / "loads.jsonl", dir),
+      0)
+      << readText(dir / "log.txt");
+  ScriptLog script = readScriptLog(dir);
+  EXPECT_TRUE(script.errors.empty()) << script.entries.dump();
+  ASSERT_TRUE(script.probes.count("loads"));
+  EXPECT_EQ(script.probes["loads"].at("load_labels").get<std::vector<double>>(),
+            (std::vector<double>{5.0, 0.5}));
+  fs::remove_all(dir);
+}
+
 TEST(Window, OpeningASceneTheStepperRefusesKeepsTheSessionRunning) {
   // A scene whose time step is out of the stepper's range (dt 1e-60 s, or a mass of 1e300 kg
   // that puts half of T_max near 1e149 s) crashed the window: Open stopped the running session

@@ -99,6 +99,7 @@ void PlotSeries::push(const Diagnostics& d, double time) {
 // ---- construction -------------------------------------------------------------------------------
 
 Window::Window(SessionSetup setup, const WindowOptions& options) : options_(options) {
+  loadLabels_.reserve(32);
   brush_.property = Property::Stiffness;
   brush_.mode = editing::BrushMode::Set;
   brush_.value = 1.0;
@@ -1164,6 +1165,7 @@ void Window::stepScript() {
                {"t_max", s.tMax},
                {"time_step_slider", dtRatio_},
                {"scheme", std::string(schemeName(s.scheme))},
+               {"load_labels", loadLabels_},
                {"damping_slider", damping_},
                {"damping_painted", s.maxDamping > s.minDamping},
                {"plot_samples", plots_.count},

@@ -666,6 +666,34 @@ void Window::overlays(const Snapshot& s) {
       draw->AddText(ImVec2(pb.x + 8, pb.y - 8), IM_COL32(20, 20, 30, 255), text);
     }
   }
+  // The loads acting now, each labelled with its size beside its vertex: the arrows are drawn
+  // to a common scale (the largest a fifth of the model), so they show directions and ratios,
+  // not newtons. The first kMaxLabels of each kind only: a scene of hundreds would be text.
+  loadLabels_.clear();
+  if (view_.glyphs) {
+    constexpr size_t kMaxLabels = 16;
+    auto label = [&](const std::vector<std::pair<Index, Vec3>>& loads, const char* format,
+                     ImU32 colour) {
+      for (size_t i = 0; i < std::min(loads.size(), kMaxLabels); ++i) {
+        const auto& [v, value] = loads[i];
+        if (v < 0 || v >= s.position.rows()) continue;
+        const auto p = projectToPixel(camera_, viewWidth_, viewHeight_, s.position.row(v));
+        if (!p) continue;
+        char text[32];
+        std::snprintf(text, sizeof text, format, value.norm());
+        const ImVec2 at(static_cast<float>(p->x()) * k + 10.0f,
+                        static_cast<float>(p->y()) * k + 4.0f);
+        const ImVec2 size = ImGui::CalcTextSize(text);
+        draw->AddRectFilled(ImVec2(at.x - 3.0f, at.y - 1.0f),
+                            ImVec2(at.x + size.x + 3.0f, at.y + size.y + 1.0f),
+                            IM_COL32(255, 255, 255, 190), 3.0f);
+        draw->AddText(at, colour, text);
+        if (loadLabels_.size() < loadLabels_.capacity()) loadLabels_.push_back(value.norm());
+      }
+    };
+    label(s.forces, "%.3g N", IM_COL32(176, 84, 0, 255));
+    label(s.torques, "%.3g N m", IM_COL32(110, 50, 160, 255));
+  }
 }
 
 }  // namespace zsculpt::app

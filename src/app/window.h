@@ -196,6 +196,9 @@ class Window {
   double seenCap_ = -1.0;
   double seenMinDamping_ = -1.0, seenMaxDamping_ = -1.0;
   bool dampingHeld_ = false;  // the damping slider is being dragged (it then follows no edit)
+  // The sizes the last frame wrote beside the loads (forces, then torques), for scripts;
+  // reserved for both kinds' labels at construction.
+  std::vector<double> loadLabels_;
   std::string pathField_;
   // The Open field's up axis: an index into kUpChoices (0: auto).
   static constexpr const char* kUpChoices[] = {"auto", "y", "z", "x", "-x", "-y", "-z"};
