@@ -501,6 +501,24 @@ TEST_F(Cli, AStepAboveTheStableLimitIsRefusedWithTheLimit) {
                      2, "symplectic-euler");
 }
 
+TEST_F(Cli, AStepAtTheStableLimitIsRefusedAsMarginal) {
+  // Torus-I's limit is exactly its T_max (Gershgorin's bound is attained). At 1.0 T_max, which
+  // was accepted until session 34, its fastest mode is marginal and the run heats: the mean
+  // energy of the last tenth of 20000 steps 8 % above the first tenth's; 0.25 % at 0.99.
+  const Result at = run("simulate builtin:torus --dt-ratio 1.0 --perturb 0.05");
+  expectOneLineError(at, 2, "is at the stable limit 0.387298 s (1 T_max)");
+  auto drift = [&](const char* ratio) {
+    const Result r = run(std::string("simulate builtin:torus --perturb 0.05 --steps 20000 --json "
+                                     "--allow-unstable --dt-ratio ") +
+                         ratio);
+    EXPECT_EQ(r.status, 0) << r.err;
+    return nlohmann::json::parse(r.out).at("energy_drift").get<double>();
+  };
+  EXPECT_GT(drift("1.0"), 0.04);
+  EXPECT_LT(std::abs(drift("0.99")), 0.01);
+  EXPECT_EQ(run("simulate builtin:torus --dt-ratio 0.99 --perturb 0.05 --steps 10").status, 0);
+}
+
 TEST_F(Cli, DivergenceExitsThreeAndWritesTheLastFiniteState) {
   const Result r =
       run("simulate builtin:dodecahedron --scheme paper --perturb 0.05 --dt-ratio 1.3 "

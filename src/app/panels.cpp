@@ -214,13 +214,14 @@ void Window::simulationPanel(const Snapshot& s) {
   if (!changed) ImGui::EndDisabled();
   ImGui::Text("T = %s = %.3f T_max,  T_max = %s", seconds(s.period).c_str(),
               std::isfinite(s.tMax) ? s.period / s.tMax : 0.0, seconds(s.tMax).c_str());
-  if (s.period > s.stableLimit && s.stableLimitTight)
-    ImGui::TextColored(ImVec4(0.8f, 0.1f, 0.1f, 1), "T is above the stable limit %s",
+  if (beyondStableLimit(s.period, s.stableLimit) && s.stableLimitTight)
+    ImGui::TextColored(ImVec4(0.8f, 0.1f, 0.1f, 1), "T is at or above the stable limit %s",
                        seconds(s.stableLimit).c_str());
-  else if (s.period > s.stableLimit)
+  else if (beyondStableLimit(s.period, s.stableLimit))
     ImGui::TextColored(ImVec4(0.75f, 0.4f, 0.0f, 1), "T may be above the stable limit (bound %s)",
                        seconds(s.stableLimit).c_str());
-  else if (changed && static_cast<int>(s.scheme) == schemeIndex_ && period > s.stableLimit)
+  else if (changed && static_cast<int>(s.scheme) == schemeIndex_ &&
+           beyondStableLimit(period, s.stableLimit))
     // Before it is applied: the limit shown is Gershgorin's bound, at most the tight one.
     ImGui::TextColored(ImVec4(0.75f, 0.4f, 0.0f, 1),
                        "T / T_max %.3f may be above the stable limit %s",

@@ -211,7 +211,7 @@ void Session::refreshLimits(bool tight) {
   // eigenvalue gives the tight one, as `zsculpt simulate` does, so that both give one limit;
   // but only when the period or the model is set (`tight`): an edit keeps to the bound, since
   // the eigenvalue costs about half a second at 100k vertices and a dab must not.
-  stableLimitTight_ = !(sim_->period() > stableLimit_);
+  stableLimitTight_ = !beyondStableLimit(sim_->period(), stableLimit_);
   if (tight && !stableLimitTight_) {
     stableLimit_ =
         stablePeriodLimit(sim_->stepper().scheme(), largestEigenvalue(system), dampingRate);

@@ -400,10 +400,10 @@ RunOptions::Resolved RunOptions::resolve(const LoadedModel& loaded) const {
   const double dampingRate = g.size() > 0 ? g.maxCoeff() : 0.0;
   const double cheapLimit = stablePeriodLimit(
       r.settings.scheme, 2.0 * matrices.omega2().diagonal().maxCoeff(), dampingRate);
-  if (period > cheapLimit) {
+  if (beyondStableLimit(period, cheapLimit)) {
     const double limit =
         stablePeriodLimit(r.settings.scheme, largestEigenvalue(matrices), dampingRate);
-    if (period > limit) {
+    if (beyondStableLimit(period, limit)) {
       // Named where the step came from: a flag, or the scene's own dt or dt_ratio.
       const std::string source = dt                           ? std::string("--dt")
                                  : dtRatio                    ? std::string("--dt-ratio")
@@ -413,9 +413,9 @@ RunOptions::Resolved RunOptions::resolve(const LoadedModel& loaded) const {
                                      : std::string("the default time step");
       std::ostringstream msg;
       msg.precision(6);
-      msg << source << ": time step " << period << " s (" << period / r.tMax
-          << " T_max) is above the stable limit " << limit << " s (" << limit / r.tMax
-          << " T_max) of scheme " << schemeName(r.settings.scheme);
+      msg << source << ": time step " << period << " s (" << period / r.tMax << " T_max) is "
+          << (period > limit * (1.0 + 1e-9) ? "above" : "at") << " the stable limit " << limit
+          << " s (" << limit / r.tMax << " T_max) of scheme " << schemeName(r.settings.scheme);
       if (dampingRate > 0.0 && limit == 1.0 / dampingRate)
         msg << " (equation 4: its damping factor 1 - gamma T must stay positive, gamma = "
                "damping / (2 mass) = "
