@@ -84,18 +84,6 @@ const char* nameOfTool(Tool tool) {
 
 }  // namespace
 
-void PlotSeries::push(const Diagnostics& d, double time) {
-  if (count > 0 && time < lastTime) clear();
-  lastTime = time;
-  kinetic[static_cast<size_t>(next)] = static_cast<float>(d.kinetic);
-  potential[static_cast<size_t>(next)] = static_cast<float>(d.potential.total());
-  total[static_cast<size_t>(next)] = static_cast<float>(d.total());
-  momentum[static_cast<size_t>(next)] = static_cast<float>(d.momentum.norm());
-  angular[static_cast<size_t>(next)] = static_cast<float>(d.angularMomentum.norm());
-  next = (next + 1) % kSize;
-  count = std::min(count + 1, kSize);
-}
-
 // ---- construction -------------------------------------------------------------------------------
 
 Window::Window(SessionSetup setup, const WindowOptions& options) : options_(options) {
@@ -1169,6 +1157,13 @@ void Window::stepScript() {
                {"damping_slider", damping_},
                {"damping_painted", s.maxDamping > s.minDamping},
                {"plot_samples", plots_.count},
+               {"plot_time_max",
+                [&] {
+                  double latest = 0.0;
+                  for (int i = 0; i < plots_.count; ++i)
+                    latest = std::max(latest, plots_.time[static_cast<size_t>(plots_.at(i))]);
+                  return latest;
+                }()},
                {"plot_last_total",
                 plots_.count > 0 ? plots_.total[static_cast<size_t>(
                                        (plots_.next + PlotSeries::kSize - 1) % PlotSeries::kSize)]

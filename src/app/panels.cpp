@@ -35,13 +35,9 @@ void wrappedText(std::string_view text) {
   auto measure = [](std::string_view t) {
     return ImGui::CalcTextSize(t.data(), t.data() + t.size()).x;
   };
-  std::size_t start = 0;
-  do {
-    const std::string_view rest = text.substr(start);
-    const std::size_t end = wrapLineEnd(rest, width, measure);
-    ImGui::TextUnformatted(rest.data(), rest.data() + end);
-    start += skipLineBreak(rest, end);
-  } while (start < text.size());
+  forEachWrappedLine(text, width, measure, [](std::string_view line) {
+    ImGui::TextUnformatted(line.data(), line.data() + line.size());
+  });
 }
 
 void help(const char* text) {
@@ -66,12 +62,19 @@ std::string seconds(double s) {
 // corners (its scale). Returns where the plot was drawn (window coordinates).
 std::array<float, 4> plot(const char* label, const std::array<float, PlotSeries::kSize>& data,
                           const PlotSeries& series, float width, float height) {
+  constexpr int kSize = PlotSeries::kSize;
+  // The samples are the `count` before `next` in the ring (a rollback can drop the newest of
+  // a full ring, so they need not start at 0).
+  struct Ring {
+    const float* values;
+    int first;
+  } ring{data.data(), series.at(0)};
   const int count = series.count;
-  const int offset = count < PlotSeries::kSize ? 0 : series.next;
   float lo = std::numeric_limits<float>::infinity(), hi = -lo;
   for (int i = 0; i < count; ++i) {
-    lo = std::min(lo, data[static_cast<size_t>(i)]);
-    hi = std::max(hi, data[static_cast<size_t>(i)]);
+    const float v = data[static_cast<size_t>((ring.first + i) % kSize)];
+    lo = std::min(lo, v);
+    hi = std::max(hi, v);
   }
   if (count == 0) lo = hi = 0.0f;
   if (hi - lo < 1e-9f * (std::abs(hi) + 1.0f)) {
@@ -93,7 +96,13 @@ std::array<float, 4> plot(const char* label, const std::array<float, PlotSeries:
   // drew every plot as an empty sliver.
   char id[64];  // no string built per frame
   std::snprintf(id, sizeof id, "##%s", label);
-  ImGui::PlotLines(id, data.data(), count, offset, nullptr, lo, hi, ImVec2(width, height));
+  ImGui::PlotLines(
+      id,
+      [](void* r, int i) {
+        const Ring& ring = *static_cast<const Ring*>(r);
+        return ring.values[(ring.first + i) % kSize];
+      },
+      &ring, count, 0, nullptr, lo, hi, ImVec2(width, height));
   const ImVec2 min = ImGui::GetItemRectMin(), max = ImGui::GetItemRectMax();
   if (count > 0) {
     char top[24], bottom[24];
@@ -233,7 +242,10 @@ void Window::simulationPanel(const Snapshot& s) {
   // held. Painted damping differs between vertices: the slider then says so and shows the
   // mean, and moving it replaces the paint everywhere (a global edit, which Ctrl+Z undoes).
   const bool dampingPainted = s.maxDamping > s.minDamping;
-  if ((s.minDamping != seenMinDamping_ || s.maxDamping != seenMaxDamping_) && !dampingHeld_) {
+  if ((s.minDamping != seenMinDamping_ || s.maxDamping != seenMaxDamping_ ||
+       s.meanDamping != seenMeanDamping_) &&
+      !dampingHeld_) {
+    seenMeanDamping_ = s.meanDamping;
     seenMinDamping_ = s.minDamping;
     seenMaxDamping_ = s.maxDamping;
     damping_ = static_cast<float>(s.meanDamping);
@@ -464,7 +476,7 @@ void Window::plotStrip() {
   ImGui::SetNextWindowPos(ImVec2(0.0f, 0.0f));
   ImGui::SetNextWindowSize(
       ImVec2(std::max(1.0f, io.DisplaySize.x - sidebar),
-             ImGui::GetTextLineHeightWithSpacing() + plotHeight + 2.0f * style.WindowPadding.y));
+             ImGui::GetFrameHeightWithSpacing() + plotHeight + 2.0f * style.WindowPadding.y));
   ImGui::SetNextWindowBgAlpha(0.7f);
   ImGui::Begin("plots", nullptr,
                ImGuiWindowFlags_NoMove | ImGuiWindowFlags_NoResize | ImGuiWindowFlags_NoCollapse |
@@ -487,13 +499,13 @@ void Window::plotStrip() {
     for (float& c : rect) c *= static_cast<float>(pixelScale_);
     if (ImGui::IsItemHovered())
       ImGui::SetTooltip(
-          i < 3 ? "%s (J): the last %d samples (a sample a frame), since the start, a Reset or a "
-                  "rollback"
-          : i == 3
-              ? "%s, linear momentum (kg m/s): the last %d samples (a sample a frame)"
-              : "%s, angular momentum about the centre of mass (kg m^2/s): the last %d samples "
-                "(a sample a frame)",
-          series[i].label, plots_.count);
+          i < 3    ? "%s (J): the last %d samples%s"
+          : i == 3 ? "%s, linear momentum (kg m/s): the last %d samples%s"
+                   : "%s, angular momentum about the centre of mass (kg m^2/s): the last %d "
+                     "samples%s",
+          series[i].label, plots_.count,
+          " (one per state the solver publishes, none while paused; Reset and a rollback drop "
+          "the samples after the time they go back to)");
   }
   ImGui::End();
 }
@@ -679,7 +691,9 @@ void Window::overlays(const Snapshot& s) {
         const auto& [v, value] = loads[i];
         if (v < 0 || v >= s.position.rows()) continue;
         const auto p = projectToPixel(camera_, viewWidth_, viewHeight_, s.position.row(v));
-        if (!p) continue;
+        // Only loads in the view: a label is drawn over everything, the sidebar included.
+        if (!p || p->x() < 0.0 || p->y() < 0.0 || p->x() >= viewWidth_ || p->y() >= viewHeight_)
+          continue;
         char text[32];
         std::snprintf(text, sizeof text, format, value.norm());
         const ImVec2 at(static_cast<float>(p->x()) * k + 10.0f,
@@ -692,8 +706,8 @@ void Window::overlays(const Snapshot& s) {
         if (loadLabels_.size() < loadLabels_.capacity()) loadLabels_.push_back(value.norm());
       }
     };
-    label(s.forces, "%.3g N", IM_COL32(176, 84, 0, 255));
-    label(s.torques, "%.3g N m", IM_COL32(110, 50, 160, 255));
+    label(s.forces, "%.4g N", IM_COL32(176, 84, 0, 255));
+    label(s.torques, "%.4g N m", IM_COL32(110, 50, 160, 255));
   }
 }
 

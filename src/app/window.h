@@ -14,6 +14,7 @@
 
 #include "zsculpt/app/application.h"
 #include "zsculpt/app/picking.h"
+#include "zsculpt/app/plot_series.h"
 #include "zsculpt/app/recording.h"
 #include "zsculpt/app/solver_thread.h"
 #include "zsculpt/app/view.h"
@@ -33,20 +34,6 @@ struct PointerEvent {
   int button = 0;           // 0 left, 1 right, 2 middle
   bool shift = false, ctrl = false, alt = false;
   double wheel = 0.0;
-};
-
-/// Rolling series for the live plots (ImGui::PlotLines), one sample per new snapshot.
-struct PlotSeries {
-  static constexpr int kSize = 600;
-  std::array<float, kSize> kinetic{}, potential{}, total{}, momentum{}, angular{};
-  int count = 0;
-  int next = 0;
-  double lastTime = 0.0;  ///< simulated time of the newest sample
-  /// Adds the snapshot's sample; a simulated time earlier than the newest sample's (Reset, a
-  /// rollback after a divergence) starts the series over, so that no curve joins two
-  /// timelines.
-  void push(const Diagnostics& d, double time);
-  void clear() { count = next = 0; }
 };
 
 /// GL entry points the window itself needs (screenshots, clearing), loaded through GLFW.
@@ -194,7 +181,7 @@ class Window {
   bool timeStepPending_ = false;  // the panel's Apply time step is enabled (a probe logs it)
   Vec3 seenGravity_ = Vec3::Constant(std::numeric_limits<double>::quiet_NaN());
   double seenCap_ = -1.0;
-  double seenMinDamping_ = -1.0, seenMaxDamping_ = -1.0;
+  double seenMinDamping_ = -1.0, seenMaxDamping_ = -1.0, seenMeanDamping_ = -1.0;
   bool dampingHeld_ = false;  // the damping slider is being dragged (it then follows no edit)
   // The sizes the last frame wrote beside the loads (forces, then torques), for scripts;
   // reserved for both kinds' labels at construction.
