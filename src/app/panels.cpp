@@ -78,8 +78,12 @@ std::array<float, 4> plot(const char* label, const std::array<float, PlotSeries:
   }
   if (count == 0) lo = hi = 0.0f;
   if (hi - lo < 1e-9f * (std::abs(hi) + 1.0f)) {
+    // A flat series gets a range about it; one that never goes below zero (a magnitude, the
+    // kinetic energy) keeps zero as its floor rather than a scale reading -5e-07 for |p|.
+    const bool nonNegative = lo >= 0.0f;
     hi += 0.5f * (std::abs(hi) + 1e-6f);
     lo -= 0.5f * (std::abs(lo) + 1e-6f);
+    if (nonNegative) lo = std::max(lo, 0.0f);
   }
   const float last =
       count > 0
