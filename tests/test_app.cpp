@@ -1428,6 +1428,31 @@ TEST(Window, EveryLoadActingNowIsLabelledWithItsSize) {
   fs::remove_all(dir);
 }
 
+TEST(Window, TheLegendFadesWhileTheCursorIsOverIt) {
+  // The legend sits over the right of the view: a spot painted there was hidden under it.
+  ZSCULPT_SKIP_WITHOUT_WINDOW();
+  const fs::path dir = tempDir("window_legend_fade");
+  ASSERT_EQ(runScriptedWindow("builtin:grid --stiffness 7", "legend_fade.jsonl", dir), 0)
+      << readText(dir / "log.txt");
+  ScriptLog script = readScriptLog(dir);
+  EXPECT_TRUE(script.errors.empty()) << script.entries.dump();
+  for (const char* name : {"shown", "over", "away"}) ASSERT_TRUE(script.probes.count(name)) << name;
+  const auto rect = script.probes["shown"].at("legend_rect").get<std::array<int, 4>>();
+  // The script's point is inside the legend (the layout of a 1280 x 800 window).
+  ASSERT_TRUE(815 >= rect[0] && 815 < rect[2] && 400 >= rect[1] && 400 < rect[3])
+      << script.probes["shown"].dump();
+  EXPECT_FALSE(script.probes["shown"].at("legend_faded").get<bool>());
+  EXPECT_TRUE(script.probes["over"].at("legend_faded").get<bool>());
+  EXPECT_FALSE(script.probes["away"].at("legend_faded").get<bool>());
+  // Faded, the legend's white panel lets the view's colours through: at its middle the
+  // capture is no longer the panel's near-white.
+  const render::Image over = render::readPng((dir / "over.png").string());
+  const int x = (rect[0] + rect[2]) / 2 + 30, y = (rect[1] + rect[3]) / 2;
+  const std::uint8_t* p = over.pixel(x, y);
+  EXPECT_LT(p[0] + p[1] + p[2], 3 * 235) << int(p[0]) << " " << int(p[1]) << " " << int(p[2]);
+  fs::remove_all(dir);
+}
+
 TEST(Window, OpeningASceneTheStepperRefusesKeepsTheSessionRunning) {
   // A scene whose time step is out of the stepper's range (dt 1e-60 s, or a mass of 1e300 kg
   // that puts half of T_max near 1e149 s) crashed the window: Open stopped the running session

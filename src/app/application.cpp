@@ -420,6 +420,12 @@ void Window::drawFrame() {
       frame.brush.normal = hover_->normal;
       frame.brush.radius = brush_.radius;
     }
+    // The legend fades while the cursor is over it (where the last frame drew it), so that
+    // the model under it, a spot just painted there, can be seen.
+    const auto legend = renderer_->legendRect();
+    legendFaded_ = legend && lastX_ >= (*legend)[0] && lastX_ < (*legend)[2] &&
+                   lastY_ >= (*legend)[1] && lastY_ < (*legend)[3];
+    frame.display.legendOpacity = legendFaded_ ? 0.2f : 1.0f;
     renderer_->draw(frame, viewWidth_, viewHeight_, 0);
   } catch (const Error& e) {
     message(std::string("display: ") + e.what());
@@ -1154,6 +1160,9 @@ void Window::stepScript() {
                {"time_step_slider", dtRatio_},
                {"scheme", std::string(schemeName(s.scheme))},
                {"load_labels", loadLabels_},
+               {"legend_faded", legendFaded_},
+               {"legend_rect", renderer_->legendRect() ? nlohmann::json(*renderer_->legendRect())
+                                                       : nlohmann::json()},
                {"damping_slider", damping_},
                {"damping_painted", s.maxDamping > s.minDamping},
                {"plot_samples", plots_.count},

@@ -182,6 +182,7 @@ class Window {
   Vec3 seenGravity_ = Vec3::Constant(std::numeric_limits<double>::quiet_NaN());
   double seenCap_ = -1.0;
   double seenMinDamping_ = -1.0, seenMaxDamping_ = -1.0, seenMeanDamping_ = -1.0;
+  bool legendFaded_ = false;  // the cursor is over the legend, drawn faded
   bool dampingHeld_ = false;  // the damping slider is being dragged (it then follows no edit)
   // The sizes the last frame wrote beside the loads (forces, then torques), for scripts;
   // reserved for both kinds' labels at construction.

@@ -1227,9 +1227,10 @@ struct Renderer::Impl {
     caption.y = std::round(height - caption.canvas.height() - 0.03 * height);
   }
 
-  void drawOverlay(const Overlay& overlay, int width, int height) {
+  void drawOverlay(const Overlay& overlay, int width, int height, float opacity = 1.0f) {
     if (!overlay.visible) return;
     gl.UseProgram(overlayProgram);
+    gl.Uniform1f(uniform(overlayProgram, "uOpacity"), std::clamp(opacity, 0.0f, 1.0f));
     gl.Uniform4f(uniform(overlayProgram, "uRect"), static_cast<float>(overlay.x),
                  static_cast<float>(overlay.y),
                  static_cast<float>(overlay.x + overlay.canvas.width()),
@@ -1410,7 +1411,7 @@ struct Renderer::Impl {
     gl.Disable(GL_DEPTH_TEST);
     gl.Enable(GL_BLEND);
     gl.BlendFuncSeparate(GL_SRC_ALPHA, GL_ONE_MINUS_SRC_ALPHA, GL_ONE, GL_ONE_MINUS_SRC_ALPHA);
-    drawOverlay(legend, w, h);
+    drawOverlay(legend, w, h, frame.display.legendOpacity);
     drawOverlay(caption, w, h);
     gl.Disable(GL_BLEND);
     gl.Enable(GL_DEPTH_TEST);
@@ -1451,6 +1452,13 @@ Renderer::~Renderer() {
 
 const RenderLimits& Renderer::limits() const {
   return impl_->limits;
+}
+
+std::optional<std::array<int, 4>> Renderer::legendRect() const {
+  const auto& legend = impl_->legend;
+  if (!legend.visible) return std::nullopt;
+  const int x = static_cast<int>(legend.x), y = static_cast<int>(legend.y);
+  return std::array<int, 4>{x, y, x + legend.canvas.width(), y + legend.canvas.height()};
 }
 
 void Renderer::checkSize(int width, int height, std::string_view what) const {

@@ -67,6 +67,9 @@ struct DisplayFlags {
   bool surfaceWireframe = false;  ///< edges of the drawn (refined) surface
   bool glyphs = true;             ///< pins, normal pins, forces, torques, markers, brush
   bool legend = true;             ///< colour bar with the scalar's name and range
+  /// The legend drawn this opaque, in [0, 1] (the window fades it while the cursor is over
+  /// it, so that a spot painted under it shows).
+  float legendOpacity = 1.0f;
   bool backgroundGradient = true;
   /// Each polygon lit by its own plane (the control mesh as the facets it is, Figure 5's
   /// original mesh), not by smoothed vertex normals.

@@ -7,7 +7,9 @@
 // topology; per frame only positions, normals and scalar values are uploaded, into
 // buffers allocated on the first frame.
 
+#include <array>
 #include <memory>
+#include <optional>
 #include <string>
 #include <string_view>
 
@@ -57,6 +59,10 @@ class Renderer {
 
   /// Forces the index buffers to be rebuilt on the next frame.
   void invalidateTopology();
+
+  /// Where the last frame drew its legend: x0, y0, x1, y1 in pixels (origin top left); none
+  /// when it drew none.
+  [[nodiscard]] std::optional<std::array<int, 4>> legendRect() const;
 
  private:
   struct Impl;
