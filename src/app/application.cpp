@@ -423,8 +423,8 @@ void Window::drawFrame() {
     // The legend fades while the cursor is over it (where the last frame drew it), so that
     // the model under it, a spot just painted there, can be seen.
     const auto legend = renderer_->legendRect();
-    legendFaded_ = legend && lastX_ >= (*legend)[0] && lastX_ < (*legend)[2] &&
-                   lastY_ >= (*legend)[1] && lastY_ < (*legend)[3];
+    legendFaded_ = legend && cursorX_ >= (*legend)[0] && cursorX_ < (*legend)[2] &&
+                   cursorY_ >= (*legend)[1] && cursorY_ < (*legend)[3];
     frame.display.legendOpacity = legendFaded_ ? 0.2f : 1.0f;
     renderer_->draw(frame, viewWidth_, viewHeight_, 0);
   } catch (const Error& e) {
@@ -499,6 +499,11 @@ void Window::readImGuiInput() {
   const ImGuiIO& io = ImGui::GetIO();
   const double x = io.MousePos.x * pixelScale_;
   const double y = io.MousePos.y * pixelScale_;
+  // Where the cursor is now, wherever it is (over a panel, out of the window: nowhere), for
+  // what follows it without being a gesture (the legend's fade).
+  const bool valid = ImGui::IsMousePosValid();
+  cursorX_ = valid ? x : -1.0;
+  cursorY_ = valid ? y : -1.0;
   const bool inView = x >= 0 && x < viewWidth_ && y >= 0 && y < viewHeight_;
   PointerEvent e;
   e.x = x;
@@ -535,6 +540,8 @@ void Window::readImGuiInput() {
 }
 
 void Window::pointer(const PointerEvent& e) {
+  cursorX_ = e.x;  // a script's pointer, which readImGuiInput does not see
+  cursorY_ = e.y;
   const double dx = e.x - lastX_;
   const double dy = e.y - lastY_;
   switch (e.kind) {

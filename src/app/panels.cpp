@@ -32,8 +32,15 @@ const char* kMaps[] = {"viridis", "diverging", "weight"};
 // decimal point. Draws substrings of the text: nothing is allocated per frame.
 void wrappedText(std::string_view text) {
   const float width = std::max(1.0f, ImGui::GetContentRegionAvail().x);
-  auto measure = [](std::string_view t) {
-    return ImGui::CalcTextSize(t.data(), t.data() + t.size()).x;
+  // The font's advances, unrounded (ImGui::CalcTextSize rounds each measure up to a whole
+  // pixel, which summed word by word or character by character would add up).
+  ImFont* font = ImGui::GetFont();
+  const float size = ImGui::GetFontSize();
+  auto measure = [font, size](std::string_view t) {
+    return font
+        ->CalcTextSizeA(size, std::numeric_limits<float>::max(), 0.0f, t.data(),
+                        t.data() + t.size())
+        .x;
   };
   forEachWrappedLine(text, width, measure, [](std::string_view line) {
     ImGui::TextUnformatted(line.data(), line.data() + line.size());
@@ -508,8 +515,8 @@ void Window::plotStrip() {
                    : "%s, angular momentum about the centre of mass (kg m^2/s): the last %d "
                      "samples%s",
           series[i].label, plots_.count,
-          " (one per state the solver publishes, none while paused; Reset and a rollback drop "
-          "the samples after the time they go back to)");
+          " (one per state the solver publishes: each cycle, and each edit while paused; Reset "
+          "and a rollback drop the samples after the time they go back to)");
   }
   ImGui::End();
 }
@@ -691,7 +698,8 @@ void Window::overlays(const Snapshot& s) {
     constexpr size_t kMaxLabels = 16;
     auto label = [&](const std::vector<std::pair<Index, Vec3>>& loads, const char* format,
                      ImU32 colour) {
-      for (size_t i = 0; i < std::min(loads.size(), kMaxLabels); ++i) {
+      size_t drawn = 0;
+      for (size_t i = 0; i < loads.size() && drawn < kMaxLabels; ++i) {
         const auto& [v, value] = loads[i];
         if (v < 0 || v >= s.position.rows()) continue;
         const auto p = projectToPixel(camera_, viewWidth_, viewHeight_, s.position.row(v));
@@ -707,11 +715,16 @@ void Window::overlays(const Snapshot& s) {
                             ImVec2(at.x + size.x + 3.0f, at.y + size.y + 1.0f),
                             IM_COL32(255, 255, 255, 190), 3.0f);
         draw->AddText(at, colour, text);
+        ++drawn;
         if (loadLabels_.size() < loadLabels_.capacity()) loadLabels_.push_back(value.norm());
       }
     };
+    // Clipped to the view: a label near its right edge would run over the sidebar.
+    draw->PushClipRect(ImVec2(0.0f, 0.0f), ImVec2(static_cast<float>(viewWidth_) * k,
+                                                  static_cast<float>(viewHeight_) * k));
     label(s.forces, "%.4g N", IM_COL32(176, 84, 0, 255));
     label(s.torques, "%.4g N m", IM_COL32(110, 50, 160, 255));
+    draw->PopClipRect();
   }
 }
 

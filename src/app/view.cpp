@@ -74,6 +74,7 @@ render::Frame& FrameBuilder::build(const Snapshot& snapshot, const ViewSettings&
   f.display.controlPoints = view.points;
   f.display.glyphs = view.glyphs;
   f.display.legend = view.colourByProperty;
+  f.display.legendOpacity = 1.0f;  // the window fades it for its own frame only
   if (view.colourByProperty && snapshot.scalar.size() == mesh_.numVertices()) {
     f.scalar.values = &snapshot.scalar;
     // The legend's label is made again only when the property changes: no allocation per

@@ -146,6 +146,7 @@ class Window {
   enum class Gesture { None, Orbit, Pan, Tool } gesture_ = Gesture::None;
   int gestureButton_ = -1;
   double lastX_ = 0.0, lastY_ = 0.0;
+  double cursorX_ = -1.0, cursorY_ = -1.0;  // the cursor now, framebuffer pixels (-1: none)
   std::optional<Pick> hover_;
   Index toolVertex_ = -1;
   Vec3 toolAnchor_ = Vec3::Zero();

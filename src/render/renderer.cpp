@@ -1457,8 +1457,11 @@ const RenderLimits& Renderer::limits() const {
 std::optional<std::array<int, 4>> Renderer::legendRect() const {
   const auto& legend = impl_->legend;
   if (!legend.visible) return std::nullopt;
-  const int x = static_cast<int>(legend.x), y = static_cast<int>(legend.y);
-  return std::array<int, 4>{x, y, x + legend.canvas.width(), y + legend.canvas.height()};
+  // Laid out in the render buffer's pixels: twice the target's when supersampling.
+  const double k = impl_->supersample ? 0.5 : 1.0;
+  const auto at = [k](double p) { return static_cast<int>(std::floor(k * p)); };
+  return std::array<int, 4>{at(legend.x), at(legend.y), at(legend.x + legend.canvas.width()),
+                            at(legend.y + legend.canvas.height())};
 }
 
 void Renderer::checkSize(int width, int height, std::string_view what) const {

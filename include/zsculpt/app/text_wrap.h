@@ -17,7 +17,8 @@ inline bool isContinuationByte(char c) {
 }
 
 /// The end of the longest head of `word` that fits in `width`: after its last '/' that
-/// fits, else after its last whole character that fits; at least one character.
+/// fits (if that keeps a quarter of it or more), else after its last whole character that fits;
+/// at least one character.
 template <typename Measure>
 std::size_t breakInsideWord(std::string_view word, float width, Measure& measure) {
   std::size_t fits = 0, slash = 0;
@@ -31,7 +32,8 @@ std::size_t breakInsideWord(std::string_view word, float width, Measure& measure
     fits = next;
     at = next;
   }
-  if (slash > 0 && slash < word.size()) return slash;
+  // After a '/' when that keeps a quarter of what fits or more (not "/" alone on a line).
+  if (slash > 0 && slash < word.size() && 4 * slash >= fits) return slash;
   if (fits > 0) return fits;
   std::size_t one = 1;  // not even one character fits: one anyway
   while (one < word.size() && isContinuationByte(word[one])) ++one;

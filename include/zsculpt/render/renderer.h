@@ -60,8 +60,8 @@ class Renderer {
   /// Forces the index buffers to be rebuilt on the next frame.
   void invalidateTopology();
 
-  /// Where the last frame drew its legend: x0, y0, x1, y1 in pixels (origin top left); none
-  /// when it drew none.
+  /// Where the last frame drew its legend: x0, y0, x1, y1 in the target's pixels (origin top
+  /// left, as draw's width and height count them); none when it drew none.
   [[nodiscard]] std::optional<std::array<int, 4>> legendRect() const;
 
  private:
