@@ -298,9 +298,9 @@ TEST(Session, TheStableLimitShownIsTheOneTheCommandLineGives) {
   Snapshot s;
   session.fill(s, Property::Stiffness);
   const double bound = s.stableLimit;
-  const double tight =
-      stablePeriodLimit(session.simulation().stepper().scheme(),
-                        largestEigenvalue(session.simulation().stepper().system()));
+  const double tight = stablePeriodLimit(
+      session.simulation().stepper().scheme(), session.simulation().stepper().system(),
+      largestEigenvalue(session.simulation().stepper().system()));
   ASSERT_GT(tight, bound * (1.0 + 1e-6));  // the grid's boundary: Gershgorin is not tight
   session.apply(SetTimeStep{session.simulation().stepper().scheme(), 0.5 * (bound + tight)});
   session.fill(s, Property::Stiffness);

@@ -270,12 +270,8 @@ void Window::openModel(const std::string& path) {
   std::unique_ptr<Session> session;
   try {
     const int choice = std::clamp(upChoice_, 0, static_cast<int>(std::size(kUpChoices)) - 1);
-    io::SceneDescription defaults;
-    defaults.properties = options_.meshProperties;
-    defaults.simulation.scheme = options_.meshScheme;
-    defaults.simulation.dtRatio = options_.meshDtRatio;
     session = std::make_unique<Session>(
-        loadSessionSetup(path, io::parseUpAxis(kUpChoices[choice]), &defaults));
+        loadSessionSetup(path, io::parseUpAxis(kUpChoices[choice]), &options_.meshDefaults));
   } catch (const Error& e) {
     message(std::string("cannot open: ") + e.what());
     return;
@@ -1180,10 +1176,6 @@ void Window::stepScript() {
                     latest = std::max(latest, plots_.time[static_cast<size_t>(plots_.at(i))]);
                   return latest;
                 }()},
-               {"plot_last_total",
-                plots_.count > 0 ? plots_.total[static_cast<size_t>(
-                                       (plots_.next + PlotSeries::kSize - 1) % PlotSeries::kSize)]
-                                 : 0.0f},
                {"apply_time_step_enabled", timeStepPending_}});
       } else if (action == "save_scene" || action == "save_mesh") {
         // Relative paths are relative to the screenshot folder, so a script's outputs stay

@@ -79,7 +79,7 @@ std::array<float, 4> plot(const char* label, const std::array<float, PlotSeries:
   const int count = series.count;
   float lo = std::numeric_limits<float>::infinity(), hi = -lo;
   for (int i = 0; i < count; ++i) {
-    const float v = data[static_cast<size_t>((ring.first + i) % kSize)];
+    const float v = data[static_cast<size_t>(series.at(i))];
     lo = std::min(lo, v);
     hi = std::max(hi, v);
   }
@@ -92,10 +92,7 @@ std::array<float, 4> plot(const char* label, const std::array<float, PlotSeries:
     lo -= 0.5f * (std::abs(lo) + 1e-6f);
     if (nonNegative) lo = std::max(lo, 0.0f);
   }
-  const float last =
-      count > 0
-          ? data[static_cast<size_t>((series.next + PlotSeries::kSize - 1) % PlotSeries::kSize)]
-          : 0.0f;
+  const float last = count > 0 ? data[static_cast<size_t>(series.at(count - 1))] : 0.0f;
   ImGui::BeginGroup();
   // Every label at the height a SameLine after a plot gives (a framed item's text offset).
   ImGui::AlignTextToFramePadding();

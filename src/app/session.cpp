@@ -200,12 +200,8 @@ std::vector<Index> Session::pins() const {
 void Session::refreshLimits(bool tight) {
   const SystemMatrices& system = sim_->stepper().system();
   tMax_ = criticalPeriod(system);
-  const double maxDiagonal =
-      system.omega2().size() > 0 ? system.omega2().diagonal().maxCoeff() : 0.0;
-  const VectorX& g = system.dampingCoefficient();
-  const double dampingRate = g.size() > 0 ? g.maxCoeff() : 0.0;
-  stableLimit_ =
-      stablePeriodLimit(sim_->stepper().scheme(), std::max(2.0 * maxDiagonal, 0.0), dampingRate);
+  const Scheme scheme = sim_->stepper().scheme();
+  stableLimit_ = gershgorinStablePeriodLimit(scheme, system);
   // The period from Gershgorin's bound (which is never below lambda_0) is never above the
   // tight limit. For a period above it the largest
   // eigenvalue gives the tight one, as `zsculpt simulate` does, so that both give one limit;
@@ -213,8 +209,7 @@ void Session::refreshLimits(bool tight) {
   // the eigenvalue costs about half a second at 100k vertices and a dab must not.
   stableLimitTight_ = !beyondStableLimit(sim_->period(), stableLimit_);
   if (tight && !stableLimitTight_) {
-    stableLimit_ =
-        stablePeriodLimit(sim_->stepper().scheme(), largestEigenvalue(system), dampingRate);
+    stableLimit_ = stablePeriodLimit(scheme, system, largestEigenvalue(system));
     stableLimitTight_ = true;
   }
   scalarStale_ = true;

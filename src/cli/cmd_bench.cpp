@@ -596,7 +596,7 @@ std::vector<PeerResult> runPeersOn(const std::string& name, const Model& model, 
     r.vertices = model.mesh.numVertices();
     r.tMax = tMax;
     r.referenceError = referenceError;
-    const double limit = stablePeriodLimit(scheme, lambda);
+    const double limit = stablePeriodLimit(scheme, system, lambda);
     r.stableLimit = limit;
     // Explicit schemes start at 0.95 of their stable limit; implicit Euler, which has none,
     // at the default's (from a whole sample interval it spent the 100k torus's budget on

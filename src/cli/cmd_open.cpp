@@ -121,10 +121,11 @@ app::SessionSetup makeSetup(const OpenOptions& o) {
 int runOpen(const OpenOptions& options) {
   app::WindowOptions window = options.window;
   // A mesh opened later from the File panel gets the same flags as the first.
-  window.meshProperties = options.model.withFlags(UniformProperties{});
+  window.meshDefaults.properties = options.model.withFlags(UniformProperties{});
   if (!options.run.scheme.empty())
-    window.meshScheme = io::schemeFromName(schemeName(schemeOption(options.run.scheme)));
-  window.meshDtRatio = options.run.dtRatio;
+    window.meshDefaults.simulation.scheme =
+        io::schemeFromName(schemeName(schemeOption(options.run.scheme)));
+  window.meshDefaults.simulation.dtRatio = options.run.dtRatio;
   render::parseImageSize(options.size, window.width, window.height, "--size");
   window.startRunning = !options.paused;
   if (!(window.speed > 0.0) || !std::isfinite(window.speed))

@@ -396,13 +396,9 @@ RunOptions::Resolved RunOptions::resolve(const LoadedModel& loaded) const {
   }
   // Refuse a step above the scheme's stable limit. The Gerschgorin bound is cheap and never
   // above the tight one, so the eigenvalue is computed only when the step exceeds it.
-  const VectorX& g = matrices.dampingCoefficient();
-  const double dampingRate = g.size() > 0 ? g.maxCoeff() : 0.0;
-  const double cheapLimit = stablePeriodLimit(
-      r.settings.scheme, 2.0 * matrices.omega2().diagonal().maxCoeff(), dampingRate);
-  if (beyondStableLimit(period, cheapLimit)) {
+  if (beyondStableLimit(period, gershgorinStablePeriodLimit(r.settings.scheme, matrices))) {
     const double limit =
-        stablePeriodLimit(r.settings.scheme, largestEigenvalue(matrices), dampingRate);
+        stablePeriodLimit(r.settings.scheme, matrices, largestEigenvalue(matrices));
     if (beyondStableLimit(period, limit)) {
       // Named where the step came from: a flag, or the scene's own dt or dt_ratio.
       const std::string source = dt                           ? std::string("--dt")
@@ -416,6 +412,8 @@ RunOptions::Resolved RunOptions::resolve(const LoadedModel& loaded) const {
       msg << source << ": time step " << period << " s (" << period / r.tMax << " T_max) is "
           << (period > limit * (1.0 + 1e-9) ? "above" : "at") << " the stable limit " << limit
           << " s (" << limit / r.tMax << " T_max) of scheme " << schemeName(r.settings.scheme);
+      const VectorX& g = matrices.dampingCoefficient();
+      const double dampingRate = g.size() > 0 ? g.maxCoeff() : 0.0;
       if (dampingRate > 0.0 && limit == 1.0 / dampingRate)
         msg << " (equation 4: its damping factor 1 - gamma T must stay positive, gamma = "
                "damping / (2 mass) = "

@@ -67,6 +67,17 @@ double stablePeriodLimit(Scheme scheme, double lambda0, double largestDampingRat
   return inf;
 }
 
+double stablePeriodLimit(Scheme scheme, const SystemMatrices& system, double largestEigenvalue) {
+  const VectorX& g = system.dampingCoefficient();
+  return stablePeriodLimit(scheme, largestEigenvalue, g.size() > 0 ? g.maxCoeff() : 0.0);
+}
+
+double gershgorinStablePeriodLimit(Scheme scheme, const SystemMatrices& system) {
+  const SparseRowMatrix& o2 = system.omega2();
+  const double maxDiagonal = o2.size() > 0 ? o2.diagonal().maxCoeff() : 0.0;
+  return stablePeriodLimit(scheme, system, std::max(2.0 * maxDiagonal, 0.0));
+}
+
 struct Stepper::Implicit {
   Eigen::SparseMatrix<double> a;  // symmetric, both triangles stored
   // dv is the previous step's solution until the next solve: the warm start.

@@ -34,11 +34,10 @@ struct WindowOptions {
   std::string stateOut;
   /// Shown in the title bar.
   std::string title = "zsculpt";
-  /// What a bare mesh opened from the File panel gets (a scene brings its own): `open`'s
-  /// property flags (--mass, --stiffness, ...) and --scheme and --dt-ratio, over the defaults.
-  UniformProperties meshProperties;
-  io::SimulationScheme meshScheme = io::SimulationScheme::Default;
-  std::optional<double> meshDtRatio;
+  /// What a bare mesh opened from the File panel gets (a scene brings its own): its
+  /// properties and simulation settings, `open`'s flags (--mass, --stiffness, ..., --scheme,
+  /// --dt-ratio) over the defaults (loadSessionSetup's meshDefaults).
+  io::SceneDescription meshDefaults;
 };
 
 /// Opens the window on a session and runs until the user closes it. Returns the exit

@@ -72,6 +72,11 @@ void checkPeriodRange(double period, const std::string& what);
 /// runs away not far past that (a dodecahedron with 1 / gamma = 0.4 T_max decays at
 /// 0.55 T_max and is gone at 0.6), however far below sqrt(12 / lambda_0) the step is.
 double stablePeriodLimit(Scheme scheme, double largestEigenvalue, double largestDampingRate = 0.0);
+/// The same for a model's matrices, their largest damping rate max G_ii taken from them:
+/// with `largestEigenvalue` (largestEigenvalue(system)) the tight limit; the Gershgorin
+/// overload takes the bound 2 max Omega^2_ii instead, never above the tight limit and cheap.
+double stablePeriodLimit(Scheme scheme, const SystemMatrices& system, double largestEigenvalue);
+double gershgorinStablePeriodLimit(Scheme scheme, const SystemMatrices& system);
 /// Whether `period` is past a stable limit: above it, or at it to within 1e-9. At the limit
 /// itself the fastest mode is marginal (its amplification a double root on the unit circle)
 /// and rounding makes it grow: Torus-I, whose limit is exactly its T_max, gained 8 % of its
