@@ -1221,6 +1221,77 @@ TEST_F(Cli, RenderDivergenceExitsThreeKeepingWhatWasRendered) {
   EXPECT_TRUE(fs::exists(j["plot"].get<std::string>()));
 }
 
+TEST_F(Cli, RenderRefusesOutputsAndInputsNamedLikeItsOwnFiles) {
+  // Found by a QA pass: each exited 0. A --csv named like the plot came out a PNG, a
+  // --state-out named like a frame was replaced by it, and a --state-in named like the
+  // diagnostics was overwritten by them.
+  const std::string quick = "render builtin:torus --perturb 0.1 --steps 4 --frames 2 --size 64x64 ";
+  expectOneLineError(run(quick + "--out " + path("a") + " --csv " + path("a/energy_momentum.png")),
+                     2, "--csv: " + path("a/energy_momentum.png") + " is the run's plot in --out");
+  expectOneLineError(
+      run(quick + "--out " + path("b") + " --state-out " + path("b/frame_0001.png")), 2,
+      "--state-out: " + path("b/frame_0001.png") + " is one of the run's frames in --out");
+  ASSERT_EQ(run("simulate builtin:torus --steps 2 --state-out " + path("c/diagnostics.csv")).status,
+            0);
+  const std::string state = slurp(path("c/diagnostics.csv"));
+  expectOneLineError(run("render builtin:torus --steps 2 --frames 1 --size 64x64 --state-in " +
+                         path("c/diagnostics.csv") + " --out " + path("c")),
+                     2, "--state-in: " + path("c/diagnostics.csv") + " is the run's diagnostics");
+  EXPECT_EQ(slurp(path("c/diagnostics.csv")), state);
+  EXPECT_FALSE(fs::exists(path("a")));
+  EXPECT_FALSE(fs::exists(path("b")));
+  // Names the run does not write are fine: a frame past the last, diagnostics given --csv.
+  const Result fine = run(quick + "--out " + path("d") + " --state-out " +
+                          path("d/frame_0007.png") + " --csv " + path("d/mine.csv"));
+  EXPECT_EQ(fine.status, 0) << fine.err;
+  EXPECT_TRUE(fs::exists(path("d/frame_0001.png")));
+}
+
+TEST_F(Cli, RenderRefusedPartWayLeavesNoFramesBehind) {
+  // An edit that falls out of range only when it comes (the brush meets the model then): the
+  // run is refused at t = 2 s, after two of its frames. They used to stay, with no
+  // diagnostics or plot beside them; a refused run leaves no output.
+  std::ofstream(path("late.json"))
+      << R"({"mesh": "builtin:torus", "edits": [{"time": 2, "property": "mass", "center": 5,)"
+      << R"( "radius": 1, "value": 0, "mode": "multiply"}]})";
+  expectOneLineError(
+      run("render " + path("late.json") + " --time 4 --frames 3 --size 64x64 --out " + path("lr")),
+      2, "/edits/0: brush: vertex 5 would get a value out of range");
+  EXPECT_FALSE(fs::exists(path("lr")));
+  // Into a folder that was there: the folder stays, without the run's frames.
+  fs::create_directories(path("kept"));
+  std::ofstream(path("kept/notes.txt")) << "mine";
+  expectOneLineError(run("render " + path("late.json") +
+                         " --time 4 --frames 3 --size 64x64 --out " + path("kept")),
+                     2, "/edits/0");
+  EXPECT_TRUE(fs::exists(path("kept/notes.txt")));
+  EXPECT_FALSE(fs::exists(path("kept/frame_0000.png")));
+}
+
+TEST_F(Cli, ASceneSeedIsThirtyTwoBitsAsOnTheCommandLine) {
+  // A larger seed wrapped: 4294967296 gave seed 0's state.
+  std::ofstream(path("seed.json"))
+      << R"({"mesh": "builtin:torus", "simulation": {"perturb": 0.1, "seed": 4294967296}})";
+  expectOneLineError(run("simulate " + path("seed.json") + " --steps 2"), 2,
+                     "/simulation/seed: must be at most 4294967295");
+  std::ofstream(path("top.json"))
+      << R"({"mesh": "builtin:torus", "simulation": {"perturb": 0.1, "seed": 4294967295}})";
+  EXPECT_EQ(run("simulate " + path("top.json") + " --steps 2").status, 0);
+}
+
+TEST_F(Cli, AngularMomentumDriftIsNullWithoutAStartingAngularMomentum) {
+  // |L - L0| / |L0| is undefined from L0 = 0: a torque from rest reported 0 while L grew to
+  // (0, 0, 3.8).
+  const Result torque = run("simulate builtin:torus --torque 5:0,0,1 --steps 20 --json");
+  ASSERT_EQ(torque.status, 0) << torque.err;
+  EXPECT_TRUE(nlohmann::json::parse(torque.out)["angular_momentum_drift"].is_null()) << torque.out;
+  const Result shaken = run("simulate builtin:torus --perturb 0.05 --steps 20 --json");
+  ASSERT_EQ(shaken.status, 0) << shaken.err;
+  const auto drift = nlohmann::json::parse(shaken.out)["angular_momentum_drift"];
+  ASSERT_TRUE(drift.is_number()) << shaken.out;
+  EXPECT_GT(drift.get<double>(), 0.0);
+}
+
 TEST_F(Cli, DemoWritesTheDefaultSceneToFramesAndPlotsAndPrintsThePaths) {
   const Result r = run("demo --out " + path("demo") + " --frames 4 --size 320x180");
   ASSERT_EQ(r.status, 0) << r.err;

@@ -57,7 +57,10 @@ int runSimulate(const SimulateOptions& options) {
   if (wantCsv) row(0, start);
   double firstSum = 0.0, lastSum = 0.0;
   long firstCount = 0, lastCount = 0;
-  double momentumDrift = 0.0, angularDrift = 0.0;
+  // |L - L0| / |L0| needs an L0 to be relative to: a model that starts without angular
+  // momentum has no relative drift (null in the JSON), whatever a torque then puts in.
+  const double l0 = start.angularMomentum.norm();
+  double momentumDrift = 0.0, angularDrift = l0 > 0.0 ? 0.0 : std::nan("");
   bool diverged = false;
   long divergedAt = -1;
   Diagnostics last = start;
@@ -86,7 +89,6 @@ int runSimulate(const SimulateOptions& options) {
       ++lastCount;
     }
     momentumDrift = std::max(momentumDrift, (d.momentum - start.momentum).norm());
-    const double l0 = start.angularMomentum.norm();
     if (l0 > 0.0)
       angularDrift =
           std::max(angularDrift, (d.angularMomentum - start.angularMomentum).norm() / l0);

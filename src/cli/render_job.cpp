@@ -27,6 +27,48 @@ namespace zsculpt::cli {
 
 namespace {
 
+// The run's own files in --out: its `frames` frames (names `digits` wide), its plot, and its
+// diagnostics when --csv names none. None may be another output or an input: the run would
+// overwrite the one with the other and say nothing (a --csv named like the plot came out a
+// PNG; a --state-in named like the diagnostics was replaced by them).
+void checkOwnFilesSpare(const RenderJobOptions& o, const LoadedModel& loaded, size_t frames,
+                        int digits) {
+  namespace fs = std::filesystem;
+  auto canonical = [](const std::string& path) {
+    std::error_code ec;
+    return fs::weakly_canonical(fs::absolute(path, ec), ec);
+  };
+  const fs::path dir = canonical(o.out);
+  auto ownFile = [&](const fs::path& file) -> std::string {
+    if (file.parent_path() != dir) return {};
+    const std::string name = file.filename().string();
+    if (name == "energy_momentum.png") return "the run's plot";
+    if (o.run.csv.empty() && name == "diagnostics.csv") return "the run's diagnostics";
+    const size_t width = static_cast<size_t>(digits);
+    if (name.size() != 6 + width + 4 || name.rfind("frame_", 0) != 0 ||
+        name.compare(6 + width, 4, ".png") != 0)
+      return {};
+    size_t index = 0;
+    for (size_t k = 6; k < 6 + width; ++k) {
+      if (name[k] < '0' || name[k] > '9') return {};
+      index = 10 * index + static_cast<size_t>(name[k] - '0');
+    }
+    return index < frames ? "one of the run's frames" : std::string();
+  };
+  std::vector<std::pair<std::string, std::string>> named = {
+      {"--csv", o.run.csv}, {"--state-out", o.run.stateOut}, {"--state-in", o.run.stateIn}};
+  named.emplace_back(loaded.source, loaded.source);
+  if (loaded.scene) named.emplace_back(loaded.scene->mesh, loaded.scene->mesh);
+  for (const auto& [what, path] : named) {
+    if (path.empty()) continue;
+    const std::string own = ownFile(canonical(path));
+    if (own.empty()) continue;
+    const std::string subject = what == path ? path : what + ": " + path;
+    throw InvalidInputError(subject + " is " + own + " in --out " + o.out +
+                            ", and one would overwrite the other");
+  }
+}
+
 constexpr long kDefaultFrames = 30;
 constexpr long kMaxFrames = 100000;
 
@@ -146,6 +188,8 @@ RenderJobResult runRenderJob(const RenderJobOptions& o) {
   if (o.levels) checkLevelsRange(*o.levels);
   if (o.out.empty()) throw InvalidInputError("--out: an output folder is required");
   io::checkCreatableDirectory(o.out);  // made by the first frame written
+  std::error_code existsError;
+  const bool outExisted = fs::exists(o.out, existsError);
   for (const std::string* path : {&o.run.csv, &o.run.stateOut})
     if (!path->empty()) io::checkOutputFile(*path);
   checkDistinctOutputs({{"--csv", &o.run.csv}, {"--state-out", &o.run.stateOut}});
@@ -160,6 +204,8 @@ RenderJobResult runRenderJob(const RenderJobOptions& o) {
       o.run.steps || o.run.time ||
       (loaded.scene && (loaded.scene->simulation.steps || loaded.scene->simulation.time));
   const std::vector<long> frameAt = frameSteps(o, resolved, explicitLength);
+  const int digits = std::max(4, static_cast<int>(std::to_string(frameAt.size() - 1).size()));
+  checkOwnFilesSpare(o, loaded, frameAt.size(), digits);
   const long steps = std::max(resolved.steps, frameAt.back());
   result.steps = steps;
   result.period = resolved.settings.period;
@@ -302,7 +348,6 @@ RenderJobResult runRenderJob(const RenderJobOptions& o) {
     series.ly.push_back(d.angularMomentum.y());
     series.lz.push_back(d.angularMomentum.z());
   };
-  const int digits = std::max(4, static_cast<int>(std::to_string(frameAt.size() - 1).size()));
   auto writeFrame = [&]() {
     char name[32];
     std::snprintf(name, sizeof name, "frame_%0*zu.png", digits, result.frames.size());
@@ -326,20 +371,30 @@ RenderJobResult runRenderJob(const RenderJobOptions& o) {
     ++next;
   }
   GuardedRun run(sim, edits);
-  for (long k = 1; k <= steps; ++k) {
-    if (!run.step(k)) {
-      result.diverged = true;
-      result.divergedAt = k;
-      result.divergence = run.why();
-      break;
+  try {
+    for (long k = 1; k <= steps; ++k) {
+      if (!run.step(k)) {
+        result.diverged = true;
+        result.divergedAt = k;
+        result.divergence = run.why();
+        break;
+      }
+      record(k, run.diagnostics());
+      if (next < frameAt.size() && frameAt[next] == k) {
+        writeFrame();
+        ++next;
+      }
+      progress.update(static_cast<double>(k) / static_cast<double>(steps),
+                      static_cast<long>(result.frames.size()), static_cast<long>(frameAt.size()));
     }
-    record(k, run.diagnostics());
-    if (next < frameAt.size() && frameAt[next] == k) {
-      writeFrame();
-      ++next;
-    }
-    progress.update(static_cast<double>(k) / static_cast<double>(steps),
-                    static_cast<long>(result.frames.size()), static_cast<long>(frameAt.size()));
+  } catch (const InvalidInputError&) {
+    // Refused part way (a scene's edit out of range where it falls): a refused run leaves no
+    // output behind, so the frames it wrote go too. A divergence is not refused: its frames
+    // up to the last good state are the run's result.
+    std::error_code ec;
+    for (const std::string& written : result.frames) fs::remove(written, ec);
+    if (!outExisted) fs::remove(o.out, ec);  // made by this run; only if empty
+    throw;
   }
   progress.finish();
   result.stepsTaken = result.diverged ? result.divergedAt - 1 : steps;

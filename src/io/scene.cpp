@@ -4,10 +4,12 @@
 #include <array>
 #include <cerrno>
 #include <cmath>
+#include <cstdint>
 #include <cstdio>
 #include <cstring>
 #include <filesystem>
 #include <fstream>
+#include <limits>
 #include <set>
 #include <sstream>
 
@@ -583,7 +585,12 @@ void readSimulation(const SceneReader& r, const Json& j, SimulationSettings& s) 
     s.time = r.positive(*v, at + "/time");
   }
   if (const Json* v = find(j, "perturb")) s.perturb = r.nonNegative(*v, at + "/perturb");
-  if (const Json* v = find(j, "seed")) s.seed = r.unsignedInteger(*v, at + "/seed", "a seed");
+  if (const Json* v = find(j, "seed")) {
+    // The generator takes 32 bits, as --seed does: a larger seed would wrap onto another.
+    s.seed = r.unsignedInteger(*v, at + "/seed", "a seed");
+    if (s.seed > std::numeric_limits<std::uint32_t>::max())
+      r.fail(at + "/seed", "must be at most 4294967295 (32 bits), got " + std::to_string(s.seed));
+  }
 }
 
 void readCamera(const SceneReader& r, const Json& j, CameraSettings& c) {
