@@ -771,6 +771,24 @@ TEST_F(Cli, AStartTimeContinuesTimedLoadsAndEdits) {
     EXPECT_EQ(r.status, 2) << bad;
     EXPECT_NE(r.err.find("--start-time"), std::string::npos) << r.err;
   }
+  // A global edit reads no shape: nothing to say of it. A relax and a dab read the shape,
+  // which at the resumed start is not the one at their time (a QA pass: 0.48 m apart after a
+  // relax): said once, naming the first.
+  const Result quiet = run(second + " --start-time " + start.str());
+  EXPECT_EQ(quiet.err.find("warning"), std::string::npos) << quiet.err;
+  std::ofstream(path("r.json")) << R"({"mesh": "builtin:torus:10:10",
+      "forces": [{"vertex": 5, "force": [0, 0, 2], "start": 0, "end": 0.3}],
+      "edits": [{"time": 0.1, "property": "stiffness", "global": true, "value": 8},
+                {"time": 0.2, "action": "relax"},
+                {"time": 0.25, "property": "mass", "center": 5, "radius": 1, "value": 2}]})";
+  const Result resumed = run("simulate " + path("r.json") + " --steps 2 --state-in " +
+                             path("half.csv") + " --start-time " + start.str());
+  EXPECT_EQ(resumed.status, 0) << resumed.err;
+  EXPECT_NE(resumed.err.find("r.json: /edits/1 at t = 0.2 s comes before the start time"),
+            std::string::npos)
+      << resumed.err;
+  EXPECT_NE(resumed.err.find("(1 more such edits)"), std::string::npos) << resumed.err;
+  EXPECT_EQ(std::count(resumed.err.begin(), resumed.err.end(), '\n'), 1) << resumed.err;
 }
 
 TEST_F(Cli, ReproduceFigure3FindsThePapersThreshold) {
