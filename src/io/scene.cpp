@@ -670,37 +670,63 @@ SceneDescription parseScene(std::string_view text, const std::string& sceneFile)
   Json json;
   // A key given twice in one object: the parser keeps the last silently, so a scene that
   // names "mesh" twice loaded whichever came second. Refused, as unknown keys are.
+  // The containers the parse is in, for the JSON pointer of what it reads.
   struct Level {
+    bool array = false;
+    size_t count = 0;  // an array's elements read so far
     std::set<std::string> keys;
-    std::string key;  // the latest, for the path
+    std::string key;  // an object's latest, for the path
   };
   std::vector<Level> objects;
+  auto pointer = [&](size_t levels) {
+    std::string path;
+    for (size_t k = 0; k < levels; ++k) {
+      path.push_back('/');
+      path.append(objects[k].array ? std::to_string(objects[k].count) : token(objects[k].key));
+    }
+    return path;
+  };
+  auto elementRead = [&] {
+    if (!objects.empty() && objects.back().array) ++objects.back().count;
+  };
   std::string duplicate;
   auto noDuplicateKeys = [&](int, Json::parse_event_t event, Json& parsed) {
     switch (event) {
       case Json::parse_event_t::object_start:
         objects.emplace_back();
         break;
+      case Json::parse_event_t::array_start:
+        objects.emplace_back().array = true;
+        break;
       case Json::parse_event_t::object_end:
+      case Json::parse_event_t::array_end:
         if (!objects.empty()) objects.pop_back();
+        elementRead();
+        break;
+      case Json::parse_event_t::value:  // a number, string, boolean or null
+        elementRead();
         break;
       case Json::parse_event_t::key: {
         const std::string key = parsed.get<std::string>();
-        if (!objects.back().keys.insert(key).second && duplicate.empty()) {
-          std::string path;
-          for (size_t k = 0; k + 1 < objects.size(); ++k) path += "/" + objects[k].key;
-          duplicate = path + "/" + key;
-        }
+        if (!objects.back().keys.insert(key).second && duplicate.empty())
+          duplicate = pointer(objects.size() - 1).append("/").append(token(key));
         objects.back().key = key;
         break;
       }
-      default:
-        break;
     }
     return true;
   };
   try {
     json = Json::parse(text, noDuplicateKeys);
+  } catch (const Json::out_of_range& e) {
+    // "number overflow parsing '1e400'": the parser says no place, so the value is named by
+    // the keys the parse had reached (an array's element by its array's key).
+    std::string what = e.what();
+    const auto quote = what.find('\'');
+    const std::string path = pointer(objects.size());
+    if (quote == std::string::npos || path.empty()) throw InvalidInputError(name + ": " + what);
+    throw InvalidInputError(name + ": " + path + ": the number " + what.substr(quote) +
+                            " is beyond a double's range");
   } catch (const Json::exception& e) {
     // "[json.exception.parse_error.101] parse error at line 3, column 5: syntax error ..."
     std::string what = e.what();

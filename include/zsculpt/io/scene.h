@@ -100,7 +100,7 @@ struct SimulationSettings {
   std::optional<std::int64_t> steps;  // at most one of steps and time
   std::optional<double> time;         // seconds
   double perturb = 0.0;               // random initial velocity size
-  std::uint64_t seed = 0;
+  std::uint64_t seed = 0;             // at most 2^32 - 1 (the generator's, as --seed)
   bool operator==(const SimulationSettings&) const = default;
 };
 
