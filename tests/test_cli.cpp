@@ -1265,6 +1265,26 @@ TEST_F(Cli, RenderRefusesOutputsAndInputsNamedLikeItsOwnFiles) {
   EXPECT_TRUE(fs::exists(path("d/frame_0001.png")));
 }
 
+TEST_F(Cli, RenderTakesVerifyMatricesAsSimulateDoes) {
+  // cli.md lists --verify-matrices among the run flags; render refused it ("not expected").
+  std::ofstream(path("ed.json"))
+      << R"({"mesh": "builtin:torus", "simulation": {"perturb": 0.05}, "edits": [)"
+      << R"({"time": 0.3, "property": "stiffness", "center": 5, "radius": 1.5, "value": 9},)"
+      << R"({"time": 0.6, "property": "angular_stiffness", "global": true, "value": 0.2}]})";
+  const Result r =
+      run("render " + path("ed.json") +
+          " --steps 10 --frames 2 --size 64x64 --verify-matrices --json --out " + path("out"));
+  ASSERT_EQ(r.status, 0) << r.err;
+  const auto j = nlohmann::json::parse(r.out);
+  EXPECT_EQ(j.at("edits_applied").get<long>(), 2);
+  EXPECT_LT(j.at("matrix_update_max_abs_diff").get<double>(), 1e-12);
+  // Without the flag the fields are not there, as with simulate.
+  const Result plain = run("render " + path("ed.json") +
+                           " --steps 2 --frames 1 --size 64x64 --json --out " + path("plain"));
+  ASSERT_EQ(plain.status, 0) << plain.err;
+  EXPECT_FALSE(nlohmann::json::parse(plain.out).contains("matrix_update_max_abs_diff"));
+}
+
 TEST_F(Cli, RenderRefusedPartWayLeavesNoFramesBehind) {
   // An edit that falls out of range only when it comes (the brush meets the model then): the
   // run is refused at t = 2 s, after two of its frames. They used to stay, with no

@@ -37,6 +37,8 @@ void addRenderCommand(CLI::App& root, CommandList& commands) {
                 "draw classic Doo-Sabin (CGAL's masks), which does not interpolate the mesh");
   app->add_flag_callback(
       "--no-progress", [o] { o->progress = false; }, "no progress bar on standard error");
+  app->add_flag("--verify-matrices", o->verifyMatrices,
+                "after every edit, compare the locally updated matrices with a full rebuild");
   commands.push_back({app, [o]() {
                         const RenderJobResult r = runRenderJob(*o);
                         return reportRenderJob(*o, r, o->model.source);

@@ -224,7 +224,7 @@ RenderJobResult runRenderJob(const RenderJobOptions& o) {
   Simulation sim(loaded.model, resolved.settings);
   o.run.prepare(loaded, sim);
   for (const std::string& warning : sim.takeWarnings()) warn(loaded.source + ": " + warning);
-  TimedEdits edits(loaded, sim, false);
+  TimedEdits edits(loaded, sim, o.verifyMatrices);
   // A bare model at rest with nothing acting on it renders identical frames: said after the
   // run, with how to set it going (the frames are still written).
   bool nothingActs = false;
@@ -398,6 +398,8 @@ RenderJobResult runRenderJob(const RenderJobOptions& o) {
   }
   progress.finish();
   result.stepsTaken = result.diverged ? result.divergedAt - 1 : steps;
+  result.editsApplied = edits.applied;
+  result.matrixDifference = edits.maxDifference;
   sayNothingActs();
 
   result.diagnostics =
@@ -451,8 +453,11 @@ int reportRenderJob(const RenderJobOptions& o, const RenderJobResult& r,
               << "  \"t_max\": " << jsonNumber(r.tMax) << ",\n"
               << "  \"diverged\": " << (r.diverged ? "true" : "false") << ",\n"
               << "  \"diverged_at_step\": " << (r.diverged ? std::to_string(r.divergedAt) : "null")
-              << ",\n"
-              << "  \"wall_seconds\": " << jsonNumber(r.wallSeconds) << "\n"
+              << ",\n";
+    if (o.verifyMatrices)
+      std::cout << "  \"edits_applied\": " << r.editsApplied << ",\n"
+                << "  \"matrix_update_max_abs_diff\": " << jsonNumber(r.matrixDifference) << ",\n";
+    std::cout << "  \"wall_seconds\": " << jsonNumber(r.wallSeconds) << "\n"
               << "}\n";
   } else {
     std::cout << "frames (" << r.frames.size() << ", " << r.width << "x" << r.height << "):";
@@ -468,6 +473,9 @@ int reportRenderJob(const RenderJobOptions& o, const RenderJobResult& r,
     if (r.stepsTaken != r.steps) std::cout << " of " << r.steps;
     std::cout << " steps of " << r.period << " s (" << shareOfTMax(r.period, r.tMax)
               << "); wall time " << r.wallSeconds << " s\n";
+    if (o.verifyMatrices)
+      std::cout << "edits applied " << r.editsApplied << ", matrix update max abs diff "
+                << r.matrixDifference << "\n";
   }
   if (r.diverged) {
     std::cerr << "zsculpt: error: " << source << ": the simulation diverged at step "

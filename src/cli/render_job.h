@@ -23,6 +23,7 @@ struct RenderJobOptions {
       levels;            ///< Doo-Sabin levels of the drawn surface (default: app::levelsForImage)
   bool classic = false;  ///< classic Doo-Sabin for the drawn surface (no interpolation)
   bool progress = true;  ///< a progress bar on standard error when it is a terminal
+  bool verifyMatrices = false;  ///< after every edit, compare the matrices with a rebuild
 };
 
 struct RenderJobResult {
@@ -35,7 +36,9 @@ struct RenderJobResult {
   int width = 0, height = 0, levels = 0;
   bool diverged = false;
   long divergedAt = -1;
-  std::string divergence;  ///< why: non-finite state, or runaway energy
+  std::string divergence;         ///< why: non-finite state, or runaway energy
+  long editsApplied = 0;          ///< the scene's edits that changed something
+  double matrixDifference = 0.0;  ///< with verifyMatrices: largest |local - rebuilt|
 };
 
 /// Runs the job. Everything that can be refused (size, property, levels, output folder,
