@@ -1285,6 +1285,31 @@ TEST_F(Cli, RenderTakesVerifyMatricesAsSimulateDoes) {
   EXPECT_FALSE(nlohmann::json::parse(plain.out).contains("matrix_update_max_abs_diff"));
 }
 
+TEST_F(Cli, AStartBeyondADoublesRangeIsRefusedAsInputNotAsADivergence) {
+  // Each exited 3, "diverged", for input out of range (a QA pass); one named "the last good
+  // state (t = 0.223607 s)", the state after the failing step.
+  expectOneLineError(run("simulate builtin:torus --rest-length-scale 1e300 --steps 2"), 2,
+                     "builtin:torus: the start's springs' energy is not finite");
+  expectOneLineError(run("simulate builtin:torus --gravity 1e308,1e308,0 --steps 2"), 2,
+                     "the start's gravity energy is not finite");
+  std::ofstream fast(path("fast.csv"));
+  fast << "x,y,z,vx,vy,vz\n";
+  for (int i = 0; i < 20; ++i) fast << i << ",0,0," << (i == 3 ? "1e300" : "0") << ",0,0\n";
+  fast.close();
+  expectOneLineError(
+      run("simulate builtin:dodecahedron --state-in " + path("fast.csv") + " --steps 2"), 2,
+      "the start's kinetic energy is not finite: its velocities (" + path("fast.csv") + ")");
+  expectOneLineError(run("render builtin:torus --rest-length-scale 1e300 --steps 2 --frames 1 "
+                         "--size 64x64 --out " +
+                         path("r")),
+                     2, "the start's springs' energy is not finite");
+  EXPECT_FALSE(fs::exists(path("r")));
+  // A clock so far out that a step does not move it: loads and edits would never come.
+  expectOneLineError(run("simulate builtin:torus --perturb 0.1 --start-time 1e17 --steps 2"), 2,
+                     "--start-time: 1e+17 s is too large for steps of 0.193649 s");
+  EXPECT_EQ(run("simulate builtin:torus --perturb 0.1 --start-time 1e6 --steps 2").status, 0);
+}
+
 TEST_F(Cli, RenderRefusedPartWayLeavesNoFramesBehind) {
   // An edit that falls out of range only when it comes (the brush meets the model then): the
   // run is refused at t = 2 s, after two of its frames. They used to stay, with no

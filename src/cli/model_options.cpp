@@ -581,6 +581,34 @@ void RunOptions::prepare(const LoadedModel& loaded, Simulation& sim) const {
   };
   constrain(pins, "--pin", true);
   constrain(pinNormals, "--pin-normal", false);
+
+  // A clock this far out cannot count the steps: with --start-time 1e17 every step left the
+  // time where it was (a QA pass), and loads and edits would never come.
+  const double period = sim.period();
+  const double counted = (startTime + period) - startTime;
+  if (!(std::abs(counted - period) <= 1e-6 * period)) {
+    std::ostringstream msg;
+    msg << "--start-time: " << startTime << " s is too large for steps of " << period
+        << " s: the clock (a double) would count each step as " << counted << " s";
+    throw InvalidInputError(msg.str());
+  }
+  // A start whose energy is not finite is input out of range, not a divergence: it was
+  // reported as one (exit 3) for --rest-length-scale 1e300, velocities of 1e300 in a state
+  // file and --gravity 1e308,1e308,0 (a QA pass).
+  const Diagnostics start = sim.diagnostics();
+  const std::string where = loaded.source + ": the start's ";
+  if (!std::isfinite(start.kinetic))
+    throw InvalidInputError(where + "kinetic energy is not finite: its velocities (" +
+                            (stateIn.empty() ? std::string("the perturbation") : stateIn) +
+                            ") are beyond what a double holds");
+  if (!std::isfinite(start.potential.radial) || !std::isfinite(start.potential.angular))
+    throw InvalidInputError(where +
+                            "springs' energy is not finite: a stiffness, rest length (--rest-"
+                            "length-scale) or position is beyond what a double holds");
+  if (!std::isfinite(start.potential.gravity))
+    throw InvalidInputError(where +
+                            "gravity energy is not finite: --gravity (or the scene's) "
+                            "times the masses and heights is beyond what a double holds");
 }
 
 std::string jsonNumber(double value) {
