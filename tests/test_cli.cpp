@@ -274,6 +274,20 @@ TEST_F(Cli, InfoOfASceneSaysWhatTheSceneSets) {
   EXPECT_NE(text.out.find("gravity [    0     0 -9.81] m/s^2"), std::string::npos) << text.out;
   // A mesh alone has no scene settings to tell.
   EXPECT_FALSE(nlohmann::json::parse(run("info builtin:torus --json").out).contains("scene"));
+  // A scene a run refuses, info refuses alike (a QA pass: a normal pin inside a solid, where
+  // the mesh has no normal, passed info and failed every run).
+  std::ofstream(path("inside.json"))
+      << R"({"mesh": "builtin:lattice:3", "constraints": [{"type": "normal", "vertex": 13}]})";
+  const std::string why =
+      "inside.json: /constraints/0: normal constraint at vertex 13: the "
+      "vertex and its neighbours have no flattest direction";
+  expectOneLineError(run("info " + path("inside.json")), 2, why);
+  expectOneLineError(run("simulate " + path("inside.json") + " --steps 1"), 2, why);
+  std::ofstream(path("twice.json"))
+      << R"({"mesh": "builtin:torus", "constraints": [{"type": "position", "vertex": 3},)"
+      << R"( {"type": "position", "vertex": 3, "target": [9, 9, 9]}]})";
+  const Result twice = run("info " + path("twice.json"));
+  EXPECT_EQ(twice.status, run("simulate " + path("twice.json") + " --steps 1").status) << twice.err;
 }
 
 TEST_F(Cli, InfoOfTheFinsReportsTheNonManifoldEdge) {

@@ -547,6 +547,20 @@ TEST(Offscreen, AUniformFieldsLegendIsOneSwatchNotAScale) {
     EXPECT_FALSE(hasColorInRegion(image, 0, 0, 480, 320, Color::hex(0xfde725), 9)) << value;
     EXPECT_FALSE(hasColorInRegion(image, 0, 0, 480, 320, Color::hex(0x440154), 9)) << value;
   }
+  // Values that differ by rounding only (a helix's rest lengths: a QA pass found a scale whose
+  // five labels all read 0.39515463) are one value too; a real difference, however small
+  // against the value, keeps its scale.
+  VectorX rounded(mesh.numVertices());
+  for (Index v = 0; v < rounded.size(); ++v)
+    rounded[v] = 0.39515463 * (1.0 + 4e-16 * static_cast<double>(v % 3));
+  VectorX small = rounded;
+  small[0] = 0.39515463 * (1.0 + 1e-6);
+  for (const VectorX* values : {&rounded, &small}) {
+    frame.scalar.values = values;
+    const Image image = offscreen().render(frame, 480, 320);
+    const bool scale = hasColorInRegion(image, 0, 0, 480, 320, Color::hex(0xfde725), 9);
+    EXPECT_EQ(scale, values == &small);
+  }
 }
 
 TEST(Offscreen, FlatShadingLightsEachFaceByItsOwnPlane) {

@@ -168,6 +168,7 @@ struct Renderer::Impl {
   int colorMapLoaded = -1;
   Overlay legend;
   Overlay caption;
+  bool captionTooWide = false;  // the caption's first clause does not fit the image
 
   // Framebuffers.
   GLuint renderFbo = 0;
@@ -860,6 +861,10 @@ struct Renderer::Impl {
         lo = 0.0;
         hi = 1.0;
       }
+      // Values that differ by rounding only (a helix's rest lengths, 0.39515463 in every
+      // label of the legend's eight digits) are uniform too: one value, one swatch.
+      if (frame.scalar.autoRange && hi - lo <= 1e-9 * std::max(std::abs(lo), std::abs(hi)))
+        lo = hi = 0.5 * (lo + hi);
       scalarUniform = frame.scalar.autoRange && hi <= lo;
       scalarValue = lo;
       if (hi <= lo) {  // a uniform field: centre it in a small range (the map's middle colour)
@@ -1206,22 +1211,40 @@ struct Renderer::Impl {
       legend.visible = false;
   }
 
-  void updateCaption(const Frame& frame, int height) {
+  void updateCaption(const Frame& frame, int width, int height) {
     caption.visible = !frame.caption.empty();
     if (!caption.visible) return;
     char key[512];
-    std::snprintf(key, sizeof key, "%s|%d", frame.caption.c_str(), height);
+    std::snprintf(key, sizeof key, "%s|%d|%d", frame.caption.c_str(), width, height);
     const double font = fontSize(height);
     if (caption.key != key) {
       caption.key = key;
       const double pad = 0.55 * font;
-      const double w = std::ceil(caption.canvas.textWidth(frame.caption, font) + 2 * pad);
+      // A caption wider than the image was cut off mid-word ("t = 8.00 s, c" at 64 x 64): its
+      // last clauses (after ", ") go while it does not fit, and a first clause that does not
+      // fit goes too, rather than half of it. (Only when the caption changes: no per-frame cost.)
+      const double room = width - 2.0 * std::round(0.03 * height);
+      std::string_view text = frame.caption;
+      double w = std::ceil(caption.canvas.textWidth(text, font) + 2 * pad);
+      while (w > room) {
+        const size_t cut = text.rfind(", ");
+        if (cut == std::string_view::npos) {
+          caption.visible = false;
+          captionTooWide = true;
+          return;
+        }
+        text = text.substr(0, cut);
+        w = std::ceil(caption.canvas.textWidth(text, font) + 2 * pad);
+      }
       const double h = std::ceil(font + 2 * pad);
       caption.canvas.reset(static_cast<int>(w), static_cast<int>(h), Color{1, 1, 1, 0});
       caption.canvas.fillRoundedRect(0, 0, w, h, 0.5 * h, Color{1.0f, 1.0f, 1.0f, 0.78f});
-      caption.canvas.text(pad, 0.5 * h, frame.caption, font, frame.style.text, Align::Start,
-                          Align::Center);
+      caption.canvas.text(pad, 0.5 * h, text, font, frame.style.text, Align::Start, Align::Center);
       uploadOverlay(caption);
+      captionTooWide = false;
+    } else if (captionTooWide) {
+      caption.visible = false;  // too narrow for any of it (above)
+      return;
     }
     caption.x = std::round(0.03 * height);
     caption.y = std::round(height - caption.canvas.height() - 0.03 * height);
@@ -1407,7 +1430,7 @@ struct Renderer::Impl {
 
     // Legend and caption on top.
     updateLegend(frame, w, h);
-    updateCaption(frame, h);
+    updateCaption(frame, w, h);
     gl.Disable(GL_DEPTH_TEST);
     gl.Enable(GL_BLEND);
     gl.BlendFuncSeparate(GL_SRC_ALPHA, GL_ONE_MINUS_SRC_ALPHA, GL_ONE, GL_ONE_MINUS_SRC_ALPHA);
