@@ -7,9 +7,12 @@ layout(triangle_strip, max_vertices = 4) out;
 uniform vec2 uViewport;
 uniform float uWidth;
 uniform float uDepthBias;
-void emitCorner(vec4 p, vec2 offsetPixels) {
+in float vScalar[];
+out float gScalar;
+void emitCorner(vec4 p, vec2 offsetPixels, float scalar) {
   vec2 ndcOffset = offsetPixels / (0.5 * uViewport);
   gl_Position = vec4(p.xy + ndcOffset * p.w, p.z - uDepthBias * p.w, p.w);
+  gScalar = scalar;
   EmitVertex();
 }
 void main() {
@@ -23,9 +26,9 @@ void main() {
   d = len > 1e-6 ? d / len : vec2(1.0, 0.0);
   vec2 n = vec2(-d.y, d.x) * (0.5 * uWidth);
   vec2 e = d * (0.5 * uWidth);
-  emitCorner(p0, -e + n);
-  emitCorner(p0, -e - n);
-  emitCorner(p1, e + n);
-  emitCorner(p1, e - n);
+  emitCorner(p0, -e + n, vScalar[0]);
+  emitCorner(p0, -e - n, vScalar[0]);
+  emitCorner(p1, e + n, vScalar[1]);
+  emitCorner(p1, e - n, vScalar[1]);
   EndPrimitive();
 }

@@ -817,6 +817,29 @@ TEST(Offscreen, CurvesAndSolidsRender) {
   EXPECT_EQ(offscreen().render(solid, 200, 200).width, 200);
 }
 
+TEST(Offscreen, ACurveIsColouredByAPropertyAsASurfaceIs) {
+  // A helix with a painted property was drawn in the curve's one colour beside a legend
+  // with a scale (a QA pass). Its first third at the top of the range, the rest at the
+  // bottom: both ends of the map are on the curve, in the view, and the plain colour is not.
+  const Mesh helix = makeHelix();
+  Frame frame = frameFor(helix);
+  VectorX values = VectorX::Zero(helix.numVertices());
+  values.head(helix.numVertices() / 3).setConstant(2.0);
+  frame.scalar.values = &values;
+  frame.scalar.name = "mass (kg)";
+  frame.display.legend = false;
+  const Image image = offscreen().render(frame, 320, 320);
+  const Color top = sampleColorMap(ColorMap::Viridis, 1.0);
+  const Color bottom = sampleColorMap(ColorMap::Viridis, 0.0);
+  EXPECT_TRUE(hasColorInRegion(image, 0, 0, 320, 320, top, 12));
+  EXPECT_TRUE(hasColorInRegion(image, 0, 0, 320, 320, bottom, 12));
+  EXPECT_FALSE(hasColorInRegion(image, 0, 0, 320, 320, frame.style.curve, 6));
+  frame.scalar.values = nullptr;  // and without a property, the curve's own colour
+  const Image plain = offscreen().render(frame, 320, 320);
+  EXPECT_TRUE(hasColorInRegion(plain, 0, 0, 320, 320, frame.style.curve, 6));
+  EXPECT_FALSE(hasColorInRegion(plain, 0, 0, 320, 320, top, 12));
+}
+
 TEST(Offscreen, PngIsWrittenWholeAndUnwritableFoldersAreReported) {
   const Mesh mesh = makeDodecahedron();
   const Frame frame = frameFor(mesh);

@@ -718,6 +718,9 @@ struct Renderer::Impl {
     uploadIndices(surfaceEdgeVao, surfaceEdgeEbo, edgeIndices);
     surfaceEdgeIndexCount = static_cast<GLsizei>(edgeIndices.size());
     bindPositions(wireEdgeVao, positionVbo);
+    gl.BindBuffer(GL_ARRAY_BUFFER, scalarVbo);  // the property's colour along curves
+    gl.EnableVertexAttribArray(2);
+    gl.VertexAttribPointer(2, 1, GL_FLOAT, GL_FALSE, sizeof(float), nullptr);
     uploadIndices(wireEdgeVao, wireEdgeEbo, wire);
     wireEdgeIndexCount = static_cast<GLsizei>(wire.size());
     // Without a stencil the control mesh is the surface: share its positions.
@@ -1276,10 +1279,20 @@ struct Renderer::Impl {
     if (pr >= 0) gl.UniformMatrix4fv(pr, 1, GL_FALSE, projection);
   }
 
+  // `byScalar`: coloured by the property through the colour map (the VAO's attribute 2),
+  // with `color`'s alpha; the colour map and range are the surface's (updateColorMap).
   void drawLines(GLuint vao, GLsizei count, GLenum mode, float width, float bias, Color color,
-                 int w, int h) {
+                 int w, int h, bool byScalar = false) {
     if (count == 0) return;
     gl.UseProgram(lineProgram);
+    gl.Uniform1i(uniform(lineProgram, "uUseScalar"), byScalar ? 1 : 0);
+    if (byScalar) {
+      gl.Uniform1f(uniform(lineProgram, "uScalarMin"), static_cast<float>(scalarMin));
+      gl.Uniform1f(uniform(lineProgram, "uScalarMax"), static_cast<float>(scalarMax));
+      gl.ActiveTexture(GL_TEXTURE0);
+      gl.BindTexture(GL_TEXTURE_2D, colorMapTexture);
+      gl.Uniform1i(uniform(lineProgram, "uColorMap"), 0);
+    }
     gl.Uniform2f(uniform(lineProgram, "uViewport"), static_cast<float>(w), static_cast<float>(h));
     gl.Uniform1f(uniform(lineProgram, "uWidth"), width);
     gl.Uniform1f(uniform(lineProgram, "uDepthBias"), bias);
@@ -1358,8 +1371,11 @@ struct Renderer::Impl {
     setCamera(lineProgram, view.data(), projection.data());
     const float lineWidth = style.lineWidth * pixel;
     if (show.surface) {
+      // Curves (and a solid's inner edges) carry the property colours too: a helix painted
+      // with mass was drawn in one colour beside a legend with a scale.
+      if (useScalar) updateColorMap(frame.scalar.map);
       drawLines(wireEdgeVao, wireEdgeIndexCount, GL_LINES, 2.6f * lineWidth, 0.0f, style.curve, w,
-                h);
+                h, useScalar);
     }
     if (show.surfaceWireframe) {
       Color c = style.wireframe;
