@@ -214,6 +214,10 @@ class Simulation {
   /// a hundred times what the motion does). A sigma that varies keeps no such sum (sigma_i
   /// f_i is no energy's gradient): 1, the total energy.
   [[nodiscard]] double uniformElasticShare() const { return uniformShare_; }
+  /// Rigidity is active and differs from vertex to vertex (painted): sigma_i f_i is then no
+  /// energy's gradient, and an undamped model can gain energy
+  /// (docs/semi-rigid-and-constraints.md).
+  [[nodiscard]] bool elasticShareVaries() const { return rigidActive_ && uniformShare_ == 1.0; }
   /// P and L (about the centre of mass) carried by the rigid motion (zero when inactive).
   [[nodiscard]] const RigidMomentum& rigidMomentum() const { return rigidMomentum_; }
 
