@@ -1270,8 +1270,15 @@ TEST_F(Cli, RenderRefusesOutputsAndInputsNamedLikeItsOwnFiles) {
                          path("c/diagnostics.csv") + " --out " + path("c")),
                      2, "--state-in: " + path("c/diagnostics.csv") + " is the run's diagnostics");
   EXPECT_EQ(slurp(path("c/diagnostics.csv")), state);
+  // The folder however it is written: a trailing slash, or a way through a folder not made yet.
+  expectOneLineError(run(quick + "--out " + path("e") + "/ --csv " + path("e/energy_momentum.png")),
+                     2, "is the run's plot in --out");
+  expectOneLineError(
+      run(quick + "--out " + path("f/new/..") + " --state-out " + path("f/frame_0000.png")), 2,
+      "is one of the run's frames in --out");
   EXPECT_FALSE(fs::exists(path("a")));
   EXPECT_FALSE(fs::exists(path("b")));
+  EXPECT_FALSE(fs::exists(path("e")));
   // Names the run does not write are fine: a frame past the last, diagnostics given --csv.
   const Result fine = run(quick + "--out " + path("d") + " --state-out " +
                           path("d/frame_0007.png") + " --csv " + path("d/mine.csv"));

@@ -34,9 +34,12 @@ namespace {
 void checkOwnFilesSpare(const RenderJobOptions& o, const LoadedModel& loaded, size_t frames,
                         int digits) {
   namespace fs = std::filesystem;
+  // Resolved where it exists, lexically past that ("out/", "./new/../" name their folder).
   auto canonical = [](const std::string& path) {
     std::error_code ec;
-    return fs::weakly_canonical(fs::absolute(path, ec), ec);
+    fs::path p = fs::weakly_canonical(fs::absolute(path, ec), ec).lexically_normal();
+    if (!p.has_filename() && p.has_parent_path()) p = p.parent_path();
+    return p;
   };
   const fs::path dir = canonical(o.out);
   auto ownFile = [&](const fs::path& file) -> std::string {
