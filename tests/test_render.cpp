@@ -554,7 +554,7 @@ TEST(Offscreen, AUniformFieldsLegendIsOneSwatchNotAScale) {
   for (Index v = 0; v < rounded.size(); ++v)
     rounded[v] = 0.39515463 * (1.0 + 4e-16 * static_cast<double>(v % 3));
   VectorX small = rounded;
-  small[0] = 0.39515463 * (1.0 + 1e-6);
+  small[0] = 0.39515463 * (1.0 + 1e-8);
   for (const VectorX* values : {&rounded, &small}) {
     frame.scalar.values = values;
     const Image image = offscreen().render(frame, 480, 320);

@@ -1173,8 +1173,10 @@ struct Renderer::Impl {
         // Enough digits to tell neighbouring labels apart.
         const double spread = std::abs(scalarMax - scalarMin) / 4.0;
         const double magnitude = std::max(std::abs(scalarMin), std::abs(scalarMax));
+        // (Up to 10: a range wider than 1e-9 of its values, below which the field counts as
+        // uniform (updateScalars), shows its ends apart; at most 8 showed 1e-8 as five 0.5s.)
         const int digits =
-            std::clamp(static_cast<int>(std::ceil(std::log10(magnitude / spread))) + 2, 3, 8);
+            std::clamp(static_cast<int>(std::ceil(std::log10(magnitude / spread))) + 2, 3, 10);
         std::snprintf(labels[k], sizeof labels[k], "%s", formatNumber(v, digits).c_str());
         labelWidth = std::max(labelWidth, legend.canvas.textWidth(labels[k], 0.9 * font));
       }
