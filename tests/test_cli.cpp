@@ -1342,6 +1342,12 @@ TEST_F(Cli, RenderRefusedPartWayLeavesNoFramesBehind) {
       run("render " + path("late.json") + " --time 4 --frames 3 --size 64x64 --out " + path("lr")),
       2, "/edits/0: brush: vertex 5 would get a value out of range");
   EXPECT_FALSE(fs::exists(path("lr")));
+  // The folders it made on the way go too (a review: an empty n1/ stayed), not those before.
+  expectOneLineError(run("render " + path("late.json") +
+                         " --time 4 --frames 3 --size 64x64 --out " + path("n1/n2/")),
+                     2, "/edits/0");
+  EXPECT_FALSE(fs::exists(path("n1")));
+  EXPECT_TRUE(fs::exists(dir_));
   // Into a folder that was there: the folder stays, without the run's frames.
   fs::create_directories(path("kept"));
   std::ofstream(path("kept/notes.txt")) << "mine";

@@ -191,8 +191,18 @@ RenderJobResult runRenderJob(const RenderJobOptions& o) {
   if (o.levels) checkLevelsRange(*o.levels);
   if (o.out.empty()) throw InvalidInputError("--out: an output folder is required");
   io::checkCreatableDirectory(o.out);  // made by the first frame written
-  std::error_code existsError;
-  const bool outExisted = fs::exists(o.out, existsError);
+  // The outermost folder of --out that is not there yet (the first frame makes it and those
+  // inside it), so that a run refused part way takes away what it made, and no more.
+  fs::path madeFolder;
+  {
+    std::error_code ec;
+    for (fs::path p = fs::absolute(o.out, ec).lexically_normal(); !p.empty(); p = p.parent_path()) {
+      if (!p.has_filename()) continue;  // a trailing slash
+      if (fs::exists(p, ec)) break;
+      madeFolder = p;
+      if (p == p.root_path()) break;
+    }
+  }
   for (const std::string* path : {&o.run.csv, &o.run.stateOut})
     if (!path->empty()) io::checkOutputFile(*path);
   checkDistinctOutputs({{"--csv", &o.run.csv}, {"--state-out", &o.run.stateOut}});
@@ -390,13 +400,19 @@ RenderJobResult runRenderJob(const RenderJobOptions& o) {
       progress.update(static_cast<double>(k) / static_cast<double>(steps),
                       static_cast<long>(result.frames.size()), static_cast<long>(frameAt.size()));
     }
-  } catch (const InvalidInputError&) {
-    // Refused part way (a scene's edit out of range where it falls): a refused run leaves no
-    // output behind, so the frames it wrote go too. A divergence is not refused: its frames
-    // up to the last good state are the run's result.
+  } catch (...) {
+    // Refused or failed part way (a scene's edit out of range where it falls, a full disk,
+    // memory): the run leaves no output behind, so the frames it wrote go, and the folders it
+    // made if they are empty. A divergence is not thrown: its frames up to the last good
+    // state are the run's result.
+    progress.finish();
     std::error_code ec;
     for (const std::string& written : result.frames) fs::remove(written, ec);
-    if (!outExisted) fs::remove(o.out, ec);  // made by this run; only if empty
+    if (!madeFolder.empty())
+      for (fs::path p = fs::absolute(o.out, ec).lexically_normal();; p = p.parent_path()) {
+        if (!p.has_filename()) continue;
+        if (!fs::remove(p, ec) || p == madeFolder || !p.has_parent_path()) break;
+      }
     throw;
   }
   progress.finish();

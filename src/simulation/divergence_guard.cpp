@@ -96,9 +96,12 @@ bool DivergenceGuard::afterStep(const Simulation& sim, const Diagnostics& diagno
     // A known way to get here, said where it applies: painted rigidity that varies heats an
     // undamped model (Torus-I half at 0.99, gently shaken: stopped at step 12; with damping
     // 0.05 kg/s it settles).
-    if (sim.elasticShareVaries())
-      msg << "; rigidity that varies from vertex to vertex can feed energy in where nothing "
-             "damps it: add damping (--damping, or Damping in the Simulation panel)";
+    if (sim.elasticShareVaries()) {
+      const bool damped = sim.model().properties.damping.maxCoeff() > 0.0;
+      msg << "; rigidity that varies from vertex to vertex can feed energy in faster than "
+          << (damped ? "the damping takes it out: more damping" : "anything takes it out: damping")
+          << " helps (--damping, or Damping in the Simulation panel)";
+    }
     reason_ = msg.str();
     return false;
   }
