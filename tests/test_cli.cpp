@@ -288,6 +288,15 @@ TEST_F(Cli, InfoOfASceneSaysWhatTheSceneSets) {
       << R"( {"type": "position", "vertex": 3, "target": [9, 9, 9]}]})";
   const Result twice = run("info " + path("twice.json"));
   EXPECT_EQ(twice.status, run("simulate " + path("twice.json") + " --steps 1").status) << twice.err;
+  // Info adds them as a run does (a review found two cases where a copy of the checks
+  // differed): a travelling pin must be its vertex's only pin, whatever the targets.
+  std::ofstream(path("travel.json"))
+      << R"({"mesh": "builtin:torus", "constraints": [)"
+      << R"({"type": "position", "vertex": 5, "target": [2, 1, 0.5], "start": 0.5, "end": 1},)"
+      << R"( {"type": "position", "vertex": 5}]})";
+  const std::string only = "travel.json: /constraints/1: vertex 5 has a pin that travels";
+  expectOneLineError(run("info " + path("travel.json") + " --json"), 2, only);
+  expectOneLineError(run("simulate " + path("travel.json") + " --steps 1"), 2, only);
 }
 
 TEST_F(Cli, InfoOfTheFinsReportsTheNonManifoldEdge) {

@@ -8,8 +8,6 @@
 
 #include "commands.h"
 #include "model_options.h"
-#include "zsculpt/constraints/constraints.h"
-#include "zsculpt/core/errors.h"
 #include "zsculpt/physics/matrices.h"
 
 namespace zsculpt::cli {
@@ -37,28 +35,15 @@ int runInfo(const ModelOptions& options, bool json) {
   const double restMax = p.restLength.size() ? p.restLength.maxCoeff() : 0.0;
   // What a scene sets besides the properties: its constraints, loads, edits and run.
   const std::optional<io::SceneDescription>& scene = loaded.scene;
-  // Its constraints are checked against the mesh as a run would check them, so that info
-  // refuses what simulate, render and open refuse (a QA pass found a normal pin where the
-  // mesh has no normal accepted here and refused by every run).
-  if (scene) {
-    ConstraintSet check;
-    for (size_t k = 0; k < scene->constraints.size(); ++k) {
-      const io::ConstraintSpec& c = scene->constraints[k];
-      try {
-        const bool exists = c.vertex >= 0 && c.vertex < mesh.numVertices();
-        const Vec3 here = exists ? Vec3(mesh.positions().row(c.vertex).transpose()) : Vec3::Zero();
-        if (c.type == io::ConstraintType::Normal)
-          check.addNormal(
-              mesh, mesh.positions(), c.vertex,
-              c.normal ? *c.normal
-                       : bestPlaneNormal(mesh, mesh.positions(), c.vertex).value_or(Vec3::UnitZ()));
-        else
-          check.addPosition(mesh, c.vertex, c.target.value_or(here));
-      } catch (const InvalidInputError& e) {
-        throw InvalidInputError(loaded.source + ": /constraints/" + std::to_string(k) + ": " +
-                                e.what());
-      }
-    }
+  // Its constraints are added as a run adds them (the same function, on a simulation of the
+  // model at rest), so that info refuses what simulate, render and open refuse: a QA pass
+  // found a normal pin where the mesh has no normal accepted here and refused by every run.
+  if (scene && !scene->constraints.empty()) {
+    SimulationSettings settings;
+    settings.scheme = Scheme::SymplecticEuler;  // the cheapest to set up; constraints are
+    settings.period = std::isfinite(tMax) && tMax > 0.0 ? 0.5 * tMax : 0.01;  // any scheme's
+    Simulation check(model, settings);
+    addSceneConstraints(loaded, check);
   }
   long pins = 0, travelling = 0, normals = 0;
   if (scene)

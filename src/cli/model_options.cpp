@@ -463,6 +463,48 @@ RunOptions::Resolved RunOptions::resolve(const LoadedModel& loaded) const {
   return r;
 }
 
+namespace {
+
+// A target far from its vertex without a travel is reached in one cycle: said, with the way
+// to move it there over time.
+void warnIfFarFromVertex(const Simulation& sim, const std::string& what, Index vertex,
+                         const Vec3& target, const std::string& remedy) {
+  const Mesh& mesh = sim.model().mesh;
+  if (vertex < 0 || vertex >= mesh.numVertices()) return;
+  const double edge = mesh.meanEdgeLengthAt(vertex, sim.state().position);
+  const double distance = (target - sim.state().position.row(vertex).transpose()).norm();
+  if (!(edge > 0.0 && distance > edge)) return;
+  std::ostringstream msg;
+  msg.precision(3);
+  msg << what << ": the target is " << distance << " from the vertex (" << distance / edge
+      << " of its edge lengths), reached in one cycle, which jerks the model; " << remedy;
+  warn(msg.str());
+}
+
+}  // namespace
+
+void addSceneConstraints(const LoadedModel& loaded, Simulation& sim) {
+  if (!loaded.scene) return;
+  for (size_t k = 0; k < loaded.scene->constraints.size(); ++k) {
+    const io::ConstraintSpec& c = loaded.scene->constraints[k];
+    const std::string where = loaded.source + ": /constraints/" + std::to_string(k);
+    try {
+      if (c.type == io::ConstraintType::Position && c.target && c.start && c.end) {
+        sim.addPositionConstraint(c.vertex, *c.target, PinTravel{*c.start, *c.end});
+      } else if (c.type == io::ConstraintType::Position) {
+        if (c.target)
+          warnIfFarFromVertex(sim, where, c.vertex, *c.target,
+                              "give it \"start\" and \"end\" to move it there over time");
+        sim.addPositionConstraint(c.vertex, c.target);
+      } else {
+        sim.addNormalConstraint(c.vertex, c.normal);
+      }
+    } catch (const InvalidInputError& e) {
+      throw InvalidInputError(where + ": " + e.what());
+    }
+  }
+}
+
 void RunOptions::prepare(const LoadedModel& loaded, Simulation& sim) const {
   State state = State::atRest(loaded.model.mesh);
   if (!stateIn.empty()) state = io::loadState(stateIn, loaded.model.mesh.numVertices());
@@ -511,41 +553,11 @@ void RunOptions::prepare(const LoadedModel& loaded, Simulation& sim) const {
   for (const std::string& f : forces) addLoad(f, "--force", false);
   for (const std::string& t : torques) addLoad(t, "--torque", true);
   // Constraints (section 6): the scene's, then the flags'. Errors name where they came from.
-  // A target far from its vertex without a travel is reached in one cycle: said, with the
-  // way to move it there over time.
+  addSceneConstraints(loaded, sim);
   auto warnIfFar = [&](const std::string& what, Index vertex, const Vec3& target,
                        const std::string& remedy) {
-    const Mesh& mesh = sim.model().mesh;
-    if (vertex < 0 || vertex >= mesh.numVertices()) return;
-    const double edge = mesh.meanEdgeLengthAt(vertex, sim.state().position);
-    const double distance = (target - sim.state().position.row(vertex).transpose()).norm();
-    if (!(edge > 0.0 && distance > edge)) return;
-    std::ostringstream msg;
-    msg.precision(3);
-    msg << what << ": the target is " << distance << " from the vertex (" << distance / edge
-        << " of its edge lengths), reached in one cycle, which jerks the model; " << remedy;
-    warn(msg.str());
+    warnIfFarFromVertex(sim, what, vertex, target, remedy);
   };
-  if (loaded.scene)
-    for (size_t k = 0; k < loaded.scene->constraints.size(); ++k) {
-      const io::ConstraintSpec& c = loaded.scene->constraints[k];
-      const std::string where = loaded.source + ": /constraints/" + std::to_string(k);
-      try {
-        if (c.type == io::ConstraintType::Position && c.target && c.start && c.end) {
-          sim.addPositionConstraint(c.vertex, *c.target, PinTravel{*c.start, *c.end});
-        } else if (c.type == io::ConstraintType::Position) {
-          if (c.target)
-            warnIfFar(where, c.vertex, *c.target,
-                      "give it \"start\" and \"end\" to move it there over time");
-          sim.addPositionConstraint(c.vertex, c.target);
-        } else {
-          sim.addNormalConstraint(c.vertex, c.normal);
-        }
-      } catch (const InvalidInputError& e) {
-        throw InvalidInputError(loaded.source + ": /constraints/" + std::to_string(k) + ": " +
-                                e.what());
-      }
-    }
   auto constrain = [&](const std::vector<std::string>& texts, const std::string& flag,
                        bool position) {
     for (const std::string& text : texts) {
