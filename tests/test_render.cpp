@@ -817,6 +817,26 @@ TEST(Offscreen, CurvesAndSolidsRender) {
   EXPECT_EQ(offscreen().render(solid, 200, 200).width, 200);
 }
 
+TEST(Offscreen, ACaptionTooWideDropsItsLastClausesRatherThanBeingCut) {
+  // "t = 8.00 s, c" at 64 x 64 (a QA pass): the clauses after ", " that do not fit go whole,
+  // so the narrow frame is the one with the short caption, pixel for pixel; a wide frame keeps
+  // all of it.
+  const Mesh mesh = makeTorus();
+  Frame frame = frameFor(mesh);
+  const std::string longer = "t = 8.00 s, centre of mass 0.321 m from its start";
+  for (const int width : {64, 160}) {
+    frame.caption = longer;
+    const Image full = offscreen().render(frame, width, width * 3 / 4 < 64 ? 64 : width * 3 / 4);
+    frame.caption = "t = 8.00 s";
+    const Image cut = offscreen().render(frame, full.width, full.height);
+    EXPECT_EQ(full.rgba, cut.rgba) << width;
+  }
+  frame.caption = longer;
+  const Image wide = offscreen().render(frame, 800, 450);
+  frame.caption = "t = 8.00 s";
+  EXPECT_GT(changedPixels(wide, offscreen().render(frame, 800, 450)), 100);
+}
+
 TEST(Offscreen, ACurveIsColouredByAPropertyAsASurfaceIs) {
   // A helix with a painted property was drawn in the curve's one colour beside a legend
   // with a scale (a QA pass). Its first third at the top of the range, the rest at the
