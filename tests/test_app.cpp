@@ -512,6 +512,20 @@ TEST(Session, ResetKeepsThePinsASaveWouldWriteAndSaysWhichLoadsWent) {
   // The pinned vertex is pulled to its target as the run goes on from the start.
   while (session.state().time < 3.0) session.advance();
   EXPECT_LT((session.state().position.row(0).transpose() - target).norm(), 1e-3);
+  // Without pins the notice says nothing of them (a QA pass: "the pins stay" of none).
+  Session unpinned(gridSetup(6));
+  unpinned.apply(AddLoad{LoadKind::Force, 20, Vec3(0, 0, 2), 10.0});
+  unpinned.apply(Play{});
+  unpinned.advance();
+  notices.clear();
+  unpinned.takeNotices(notices);
+  notices.clear();
+  unpinned.apply(Reset{});
+  unpinned.takeNotices(notices);
+  ASSERT_EQ(notices.size(), 1u);
+  EXPECT_EQ(notices[0],
+            "reset: back to the start; the 1 force or torque added with the tools "
+            "went with the run");
 }
 
 TEST(Session, PaintingStiffnessChangesTheProperty) {
@@ -1799,6 +1813,26 @@ TEST(PlotSeries, TimeGoingBackDropsOnlyTheSamplesAfterIt) {
   plots.push(d, 0.0);
   EXPECT_EQ(plots.count, 1);
   EXPECT_EQ(plots.time[static_cast<size_t>(plots.at(0))], 0.0);
+}
+
+TEST(Window, TheNoDampingHintGoesOnceThereIsDampingAndEveryProbeIsLogged) {
+  // A QA pass: with damping set, the line under the status still said "no damping: motion
+  // never dies out"; and a probe of a vertex behind the camera went missing from the log.
+  ZSCULPT_SKIP_WITHOUT_WINDOW();
+  const fs::path dir = tempDir("window_damping_hint");
+  ASSERT_EQ(runScriptedWindow("builtin:torus", "damping_hint.jsonl", dir), 0)
+      << readText(dir / "log.txt");
+  ScriptLog script = readScriptLog(dir);
+  EXPECT_TRUE(script.errors.empty()) << script.entries.dump();
+  for (const char* name : {"start", "damped", "behind"})
+    ASSERT_TRUE(script.probes.count(name)) << name;
+  const auto& start = script.probes["start"].at("status_message");
+  ASSERT_TRUE(start.is_string()) << start;
+  EXPECT_EQ(start.get<std::string>().rfind("no damping:", 0), 0u) << start;
+  const auto& damped = script.probes["damped"].at("status_message");
+  EXPECT_TRUE(damped.is_null() || damped.get<std::string>().rfind("no damping:", 0) != 0) << damped;
+  EXPECT_TRUE(script.probes["damped"].at("pixel").is_array());
+  EXPECT_TRUE(script.probes["behind"].at("pixel").is_null()) << script.probes["behind"];
 }
 
 TEST(Window, TheDampingSliderFollowsPaintAndThePlotsStartOverOnReset) {

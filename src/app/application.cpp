@@ -1142,41 +1142,45 @@ void Window::stepScript() {
         const Index v = j.at("vertex").get<Index>();
         if (v < 0 || v >= s.position.rows())
           throw InvalidInputError("probe " + std::to_string(v) + ": no such vertex");
+        // A vertex that does not project (behind the camera) is probed all the same, its
+        // pixel null: such probes went missing from the log without a word (a QA pass).
         const auto px =
             projectToPixel(camera_, viewWidth_, viewHeight_, s.position.row(v).transpose());
-        if (px)
-          scriptLog_.push_back(
-              {{"frame", scriptFrame_},
-               {"probe", j.value("name", std::string())},
-               {"vertex", v},
-               {"pixel", {px->x(), px->y()}},
-               {"position", {s.position(v, 0), s.position(v, 1), s.position(v, 2)}},
-               {"scalar", s.scalar.size() > v ? s.scalar[v] : 0.0},
-               {"tool", nameOfTool(tool_)},
-               {"brush_radius", brush_.radius},
-               {"brush_strength", brush_.strength},
-               {"running", s.running},
-               {"cycle", s.cycle},
-               {"distance", camera_.distance},
-               {"period", s.period},
-               {"t_max", s.tMax},
-               {"time_step_slider", dtRatio_},
-               {"scheme", std::string(schemeName(s.scheme))},
-               {"load_labels", loadLabels_},
-               {"legend_faded", legendFaded_},
-               {"legend_rect", renderer_->legendRect() ? nlohmann::json(*renderer_->legendRect())
-                                                       : nlohmann::json()},
-               {"damping_slider", damping_},
-               {"damping_painted", s.maxDamping > s.minDamping},
-               {"plot_samples", plots_.count},
-               {"plot_time_max",
-                [&] {
-                  double latest = 0.0;
-                  for (int i = 0; i < plots_.count; ++i)
-                    latest = std::max(latest, plots_.time[static_cast<size_t>(plots_.at(i))]);
-                  return latest;
-                }()},
-               {"apply_time_step_enabled", timeStepPending_}});
+        const bool statusShown =
+            !log_.empty() && std::chrono::steady_clock::now() - lastMessageAt_ < kMessageShown;
+        scriptLog_.push_back(
+            {{"frame", scriptFrame_},
+             {"probe", j.value("name", std::string())},
+             {"vertex", v},
+             {"pixel", px ? nlohmann::json{px->x(), px->y()} : nlohmann::json()},
+             {"status_message", statusShown ? nlohmann::json(log_.back()) : nlohmann::json()},
+             {"position", {s.position(v, 0), s.position(v, 1), s.position(v, 2)}},
+             {"scalar", s.scalar.size() > v ? s.scalar[v] : 0.0},
+             {"tool", nameOfTool(tool_)},
+             {"brush_radius", brush_.radius},
+             {"brush_strength", brush_.strength},
+             {"running", s.running},
+             {"cycle", s.cycle},
+             {"distance", camera_.distance},
+             {"period", s.period},
+             {"t_max", s.tMax},
+             {"time_step_slider", dtRatio_},
+             {"scheme", std::string(schemeName(s.scheme))},
+             {"load_labels", loadLabels_},
+             {"legend_faded", legendFaded_},
+             {"legend_rect", renderer_->legendRect() ? nlohmann::json(*renderer_->legendRect())
+                                                     : nlohmann::json()},
+             {"damping_slider", damping_},
+             {"damping_painted", s.maxDamping > s.minDamping},
+             {"plot_samples", plots_.count},
+             {"plot_time_max",
+              [&] {
+                double latest = 0.0;
+                for (int i = 0; i < plots_.count; ++i)
+                  latest = std::max(latest, plots_.time[static_cast<size_t>(plots_.at(i))]);
+                return latest;
+              }()},
+             {"apply_time_step_enabled", timeStepPending_}});
       } else if (action == "save_scene" || action == "save_mesh") {
         // Relative paths are relative to the screenshot folder, so a script's outputs stay
         // together.

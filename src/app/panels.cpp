@@ -126,9 +126,6 @@ std::array<float, 4> plot(const char* label, const std::array<float, PlotSeries:
   return {min.x, min.y, max.x, max.y};
 }
 
-// How long the newest message stays under the status line.
-constexpr std::chrono::seconds kMessageShown{8};
-
 }  // namespace
 
 void Window::panels() {
@@ -257,6 +254,10 @@ void Window::simulationPanel(const Snapshot& s) {
     seenMinDamping_ = s.minDamping;
     seenMaxDamping_ = s.maxDamping;
     damping_ = static_cast<float>(s.meanDamping);
+    // The start's "no damping" line under the status is no longer true: it goes from there
+    // (it stays in the log), rather than contradicting the slider above it (a QA pass).
+    if (s.maxDamping > 0.0 && !log_.empty() && log_.back().rfind("no damping:", 0) == 0)
+      lastMessageAt_ = {};
   }
   ImGui::SliderFloat("damping", &damping_, 0.0f, 1.0f,
                      dampingPainted ? "painted, mean %.4f kg/s" : "%.4f kg/s",

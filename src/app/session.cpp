@@ -283,8 +283,9 @@ void Session::apply(const Command& command) {
                    sim_->clearConstraints();
                    addConstraints(pins);
                    guard_->restart(*sim_);
-                   if (added > 0)
-                     notices_.push_back("reset: back to the start; the pins stay, and the " +
+                   if (added > 0)  // the pins said only where there are some (a QA pass)
+                     notices_.push_back(std::string("reset: back to the start; ") +
+                                        (pins.empty() ? "the " : "the pins stay, and the ") +
                                         std::to_string(added) +
                                         (added == 1 ? " force or torque" : " forces and torques") +
                                         " added with the tools went with the run");

@@ -54,6 +54,9 @@ struct Pick {
   Index controlFace = -1;  // the control face hit (-1 when picking the refined surface)
 };
 
+// How long the newest message stays under the status line.
+inline constexpr std::chrono::seconds kMessageShown{8};
+
 class Window {
  public:
   Window(SessionSetup setup, const WindowOptions& options);
