@@ -1815,6 +1815,30 @@ TEST(PlotSeries, TimeGoingBackDropsOnlyTheSamplesAfterIt) {
   EXPECT_EQ(plots.time[static_cast<size_t>(plots.at(0))], 0.0);
 }
 
+TEST(Window, ThePlotsStayInTheViewOfANarrowWindow) {
+  // A QA pass, at 800 x 500 (a 440-pixel view beside the sidebar): each plot's label and value
+  // ("kinetic 1.823e+04") was wider than its plot and pushed the next ones along, so |p| was
+  // cut and |L| hidden under the sidebar (boxes to x = 493 and 579).
+  ZSCULPT_SKIP_WITHOUT_WINDOW();
+  const fs::path dir = tempDir("window_narrow_plots");
+  ASSERT_EQ(runScriptedWindow("builtin:grid --size 800x500", "narrow_plots.jsonl", dir), 0)
+      << readText(dir / "log.txt");
+  ScriptLog script = readScriptLog(dir);
+  EXPECT_TRUE(script.errors.empty()) << script.entries.dump();
+  bool found = false;
+  for (const auto& entry : script.entries)
+    if (entry.contains("plots")) {
+      found = true;
+      const auto& rects = entry.at("plots");
+      ASSERT_EQ(rects.size(), 5u);
+      for (const auto& r : rects) {
+        EXPECT_LE(r[2].get<double>(), 440.0) << rects;                      // within the view
+        EXPECT_GT(r[2].get<double>() - r[0].get<double>(), 40.0) << rects;  // still a plot
+      }
+    }
+  EXPECT_TRUE(found) << script.entries.dump();
+}
+
 TEST(Window, TheNoDampingHintGoesOnceThereIsDampingAndEveryProbeIsLogged) {
   // A QA pass: with damping set, the line under the status still said "no damping: motion
   // never dies out"; and a probe of a vertex behind the camera went missing from the log.

@@ -94,12 +94,25 @@ std::array<float, 4> plot(const char* label, const std::array<float, PlotSeries:
   }
   const float last = count > 0 ? data[static_cast<size_t>(series.at(count - 1))] : 0.0f;
   ImGui::BeginGroup();
-  // Every label at the height a SameLine after a plot gives (a framed item's text offset).
-  ImGui::AlignTextToFramePadding();
+  // The label and newest value, at the height a SameLine after a plot gives (a framed item's
+  // text offset), within the plot's width: a wider one pushed the plots after it off the
+  // view on a narrow window ("kinetic 1.823e+04" over a 78-pixel plot; a QA pass). Where the
+  // two do not fit, the value alone (the tooltip names the plot), clipped if even that is wider.
+  char text[96], value[32];
+  std::snprintf(value, sizeof value, "%.4g", static_cast<double>(last));
   if (count > 0)
-    ImGui::Text("%s %.4g", label, static_cast<double>(last));
+    std::snprintf(text, sizeof text, "%s %s", label, value);
   else
-    ImGui::TextUnformatted(label);
+    std::snprintf(text, sizeof text, "%s", label);
+  const char* shown = count > 0 && ImGui::CalcTextSize(text).x > width ? value : text;
+  const ImVec2 at = ImGui::GetCursorScreenPos();
+  const float line = ImGui::GetFrameHeight();
+  ImDrawList* labels = ImGui::GetWindowDrawList();
+  labels->PushClipRect(at, ImVec2(at.x + width, at.y + line), true);
+  labels->AddText(ImVec2(at.x, at.y + ImGui::GetStyle().FramePadding.y),
+                  ImGui::GetColorU32(ImGuiCol_Text), shown);
+  labels->PopClipRect();
+  ImGui::Dummy(ImVec2(width, line));
   // A width given, not -1: ImGui 1.86 (Debian 12's) takes a negative plot width literally, and
   // drew every plot as an empty sliver.
   char id[64];  // no string built per frame
