@@ -1958,7 +1958,15 @@ TEST(Window, AScriptWithAnUnknownKeyOrMemberIsRefusedNamingItsLine) {
       {"{\"ui\": \"probe\", \"vertex\": 4294967296}",
        ": line 2: probe: vertex: expected a vertex number, got 4294967296"},
       {"{\"ui\": \"mouse_down\", \"at_vertex\": -1}",
-       ": line 2: mouse_down: at_vertex: expected a vertex number, got -1"}};
+       ": line 2: mouse_down: at_vertex: expected a vertex number, got -1"},
+      // A member of the wrong type ran the script and failed at its line in the JSON
+      // library's words, the right-drag it meant never done (a QA pass).
+      {"{\"ui\": \"mouse_down\", \"at\": [100, 100], \"button\": \"right\"}",
+       ": line 2: mouse_down: button: expected an integer, got \"right\""},
+      {"{\"ui\": \"wait_time\", \"time\": \"2\"}",
+       ": line 2: wait_time: time: expected a finite number, got \"2\""},
+      {"{\"ui\": \"key\", \"key\": \"z\", \"ctrl\": 1}",
+       ": line 2: key: ctrl: expected true or false, got 1"}};
   for (const auto& [line, expected] : cases) {
     const fs::path script = dir / "bad.jsonl";
     {

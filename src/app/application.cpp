@@ -939,6 +939,32 @@ void Window::loadScript(const std::string& path) {
       throw InvalidInputError(where + ": " + action + ": unknown member \"" + member +
                               "\" (valid: " + (valid.empty() ? "none" : valid) + ")");
     }
+    // Every other member's type, before the window opens too: a string for "button" ran the
+    // script and failed at its line with the JSON library's words (a QA pass).
+    static const std::map<std::string, char> kinds = {
+        {"frames", 'i'},   {"cycle", 'i'},     {"levels", 'i'},   {"button", 'i'},
+        {"time", 'n'},     {"value", 'n'},     {"strength", 'n'}, {"radius", 'n'},
+        {"yaw", 'n'},      {"pitch", 'n'},     {"zoom", 'n'},     {"clicks", 'n'},
+        {"ctrl", 'b'},     {"shift", 'b'},     {"alt", 'b'},      {"pin_by_brush", 'b'},
+        {"frame", 'b'},    {"wireframe", 'b'}, {"points", 'b'},   {"tool", 's'},
+        {"property", 's'}, {"mode", 's'},      {"falloff", 's'},  {"colour_map", 's'},
+        {"key", 's'},      {"name", 's'},      {"what", 's'},     {"path", 's'},
+        {"up", 's'}};
+    for (const auto& [member, v] : j.items()) {
+      const auto kind = kinds.find(member);
+      if (kind == kinds.end()) continue;
+      const bool ok = kind->second == 'i'   ? v.is_number_integer()
+                      : kind->second == 'n' ? v.is_number() && std::isfinite(v.get<double>())
+                      : kind->second == 'b' ? v.is_boolean()
+                                            : v.is_string();
+      if (!ok)
+        throw InvalidInputError(where + ": " + action + ": " + member + ": expected " +
+                                (kind->second == 'i'   ? "an integer"
+                                 : kind->second == 'n' ? "a finite number"
+                                 : kind->second == 'b' ? "true or false"
+                                                       : "a string") +
+                                ", got " + v.dump());
+    }
     // Pixel pairs and vertex numbers are checked here, before the window opens: a short
     // array was read past its end (a crash), and a vertex of 2^32 wrapped to vertex 0.
     for (const char* pair : {"at", "offset", "range"}) {
