@@ -131,9 +131,17 @@ std::array<float, 4> plot(const char* label, const std::array<float, PlotSeries:
     std::snprintf(bottom, sizeof bottom, "%.3g", static_cast<double>(lo));
     ImDrawList* draw = ImGui::GetWindowDrawList();
     const ImU32 dim = ImGui::GetColorU32(ImGuiCol_Text, 0.55f);
-    const float pad = 2.0f;
-    draw->AddText(ImVec2(min.x + pad, min.y + pad), dim, top);
-    draw->AddText(ImVec2(min.x + pad, max.y - pad - ImGui::GetTextLineHeight()), dim, bottom);
+    // On a backing of the plot's own colour: the curve (a first sample's jump) ran through
+    // the digits (a QA pass).
+    const ImU32 backing = ImGui::GetColorU32(ImGuiCol_FrameBg, 0.85f);
+    const float pad = 2.0f, line = ImGui::GetTextLineHeight();
+    const ImVec2 topAt(min.x + pad, min.y + pad), bottomAt(min.x + pad, max.y - pad - line);
+    draw->AddRectFilled(topAt, ImVec2(topAt.x + ImGui::CalcTextSize(top).x, topAt.y + line),
+                        backing);
+    draw->AddRectFilled(
+        bottomAt, ImVec2(bottomAt.x + ImGui::CalcTextSize(bottom).x, bottomAt.y + line), backing);
+    draw->AddText(topAt, dim, top);
+    draw->AddText(bottomAt, dim, bottom);
   }
   ImGui::EndGroup();
   return {min.x, min.y, max.x, max.y};
