@@ -1704,7 +1704,9 @@ TEST(Window, TheTimeStepPanelShowsTheRunningRatioAndOffersApplyOnlyForAChange) {
       << readText(dir / "log.txt");
   ScriptLog script = readScriptLog(dir);
   EXPECT_TRUE(script.errors.empty()) << script.entries.dump();
-  for (const char* name : {"start", "set", "painted", "undone"}) {
+  // "at_once" probes in the frame the step was applied, with no frame between: the slider
+  // was read a frame late there, before the panels followed the step (a QA pass).
+  for (const char* name : {"start", "set", "painted", "undone", "at_once"}) {
     ASSERT_TRUE(script.probes.count(name)) << name;
     const nlohmann::json& p = script.probes[name];
     const double period = p.at("period").get<double>(), tMax = p.at("t_max").get<double>();
@@ -1712,6 +1714,8 @@ TEST(Window, TheTimeStepPanelShowsTheRunningRatioAndOffersApplyOnlyForAChange) {
     EXPECT_FALSE(p.at("apply_time_step_enabled").get<bool>()) << name;
   }
   EXPECT_DOUBLE_EQ(script.probes["set"].at("period").get<double>(), 0.05);
+  EXPECT_DOUBLE_EQ(script.probes["at_once"].at("period").get<double>(), 0.03);
+  EXPECT_EQ(script.probes["at_once"].at("scheme"), "paper");
   // Painting stiffer lowered T_max (and T with it); the undo raised T_max again.
   EXPECT_LT(script.probes["painted"].at("t_max").get<double>(),
             script.probes["set"].at("t_max").get<double>());

@@ -394,6 +394,7 @@ void Window::drawFrame() {
   ImGui_ImplOpenGL3_NewFrame();
   ImGui_ImplGlfw_NewFrame();
   ImGui::NewFrame();
+  followModel(solver_->current());
   if (scripted_) {
     // The script is the only user: the real pointer (Xvfb parks it mid-screen) must not
     // move the tools or the camera.

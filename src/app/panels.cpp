@@ -195,6 +195,53 @@ void Window::panels() {
   popups(s);
 }
 
+// The sliders and switches follow the model (a new step, scheme or T_max, gravity, the cap,
+// the damping), first thing in a frame: a script's probe in the frame reads them as the
+// panels will show them (it read the time-step slider a frame late; a QA pass).
+void Window::followModel(const Snapshot& s) {
+  // The time-step slider follows what the session runs: a new step, scheme or T_max
+  // (painting, undo) resets it, so that it never shows a ratio other than the one in the line
+  // below it.
+  if (s.scheme != seenScheme_ || s.period != seenPeriod_ || s.tMax != seenTMax_) {
+    seenScheme_ = s.scheme;
+    seenPeriod_ = s.period;
+    seenTMax_ = s.tMax;
+    schemeIndex_ = static_cast<int>(s.scheme);
+    if (std::isfinite(s.tMax) && s.tMax > 0.0) dtRatio_ = static_cast<float>(s.period / s.tMax);
+  }
+  const double period = dtRatio_ * s.tMax;
+  timeStepPending_ =
+      static_cast<int>(s.scheme) != schemeIndex_ ||
+      (std::isfinite(period) && s.tMax > 0.0 && dtRatio_ != static_cast<float>(s.period / s.tMax));
+  if (s.gravity != seenGravity_) {
+    seenGravity_ = s.gravity;
+    gravityOn_ = !s.gravity.isZero();
+    if (gravityOn_)
+      gravity_ = {static_cast<float>(s.gravity.x()), static_cast<float>(s.gravity.y()),
+                  static_cast<float>(s.gravity.z())};
+  }
+  if (s.stiffnessCap != seenCap_) {
+    seenCap_ = s.stiffnessCap;
+    capOn_ = std::isfinite(s.stiffnessCap);
+    if (capOn_) cap_ = static_cast<float>(s.stiffnessCap);
+  }
+  // The slider follows the model's damping (a brush, undo, a global edit), except while it is
+  // held. Painted damping differs between vertices: the slider then says so and shows the
+  // mean, and moving it replaces the paint everywhere (a global edit, which Ctrl+Z undoes).
+  if ((s.minDamping != seenMinDamping_ || s.maxDamping != seenMaxDamping_ ||
+       s.meanDamping != seenMeanDamping_) &&
+      !dampingHeld_) {
+    seenMeanDamping_ = s.meanDamping;
+    seenMinDamping_ = s.minDamping;
+    seenMaxDamping_ = s.maxDamping;
+    damping_ = static_cast<float>(s.meanDamping);
+    // The start's "no damping" line under the status is no longer true: it goes from there
+    // (it stays in the log), rather than contradicting the slider above it (a QA pass).
+    if (s.maxDamping > 0.0 && !log_.empty() && log_.back().rfind("no damping:", 0) == 0)
+      lastMessageAt_ = {};
+  }
+}
+
 void Window::simulationPanel(const Snapshot& s) {
   if (ImGui::Button(s.running ? "Pause" : "Play"))
     push(s.running ? Command(Pause{}) : Command(Play{}));
@@ -208,27 +255,6 @@ void Window::simulationPanel(const Snapshot& s) {
       "Back to the start as a save and a reopen would have it: painted properties (undo them "
       "with Ctrl+Z) and pins stay; forces and torques added with the tools go.");
 
-  // The slider follows what the session runs: a new step, scheme or T_max (painting, undo)
-  // resets it, so that it never shows a ratio other than the one in the line below it.
-  if (s.scheme != seenScheme_ || s.period != seenPeriod_ || s.tMax != seenTMax_) {
-    seenScheme_ = s.scheme;
-    seenPeriod_ = s.period;
-    seenTMax_ = s.tMax;
-    schemeIndex_ = static_cast<int>(s.scheme);
-    if (std::isfinite(s.tMax) && s.tMax > 0.0) dtRatio_ = static_cast<float>(s.period / s.tMax);
-  }
-  if (s.gravity != seenGravity_) {
-    seenGravity_ = s.gravity;
-    gravityOn_ = !s.gravity.isZero();
-    if (gravityOn_)
-      gravity_ = {static_cast<float>(s.gravity.x()), static_cast<float>(s.gravity.y()),
-                  static_cast<float>(s.gravity.z())};
-  }
-  if (s.stiffnessCap != seenCap_) {
-    seenCap_ = s.stiffnessCap;
-    capOn_ = std::isfinite(s.stiffnessCap);
-    if (capOn_) cap_ = static_cast<float>(s.stiffnessCap);
-  }
   ImGui::Combo("scheme", &schemeIndex_, kSchemes, IM_ARRAYSIZE(kSchemes));
   ImGui::SliderFloat("T / T_max", &dtRatio_, 0.05f, 1.5f, "%.3f");
   help(
@@ -264,22 +290,7 @@ void Window::simulationPanel(const Snapshot& s) {
   if (s.substeps > 1 && s.running)
     ImGui::Text("fast motion: each cycle taken in %d steps of T / %d", s.substeps, s.substeps);
 
-  // The slider follows the model's damping (a brush, undo, a global edit), except while it is
-  // held. Painted damping differs between vertices: the slider then says so and shows the
-  // mean, and moving it replaces the paint everywhere (a global edit, which Ctrl+Z undoes).
   const bool dampingPainted = s.maxDamping > s.minDamping;
-  if ((s.minDamping != seenMinDamping_ || s.maxDamping != seenMaxDamping_ ||
-       s.meanDamping != seenMeanDamping_) &&
-      !dampingHeld_) {
-    seenMeanDamping_ = s.meanDamping;
-    seenMinDamping_ = s.minDamping;
-    seenMaxDamping_ = s.maxDamping;
-    damping_ = static_cast<float>(s.meanDamping);
-    // The start's "no damping" line under the status is no longer true: it goes from there
-    // (it stays in the log), rather than contradicting the slider above it (a QA pass).
-    if (s.maxDamping > 0.0 && !log_.empty() && log_.back().rfind("no damping:", 0) == 0)
-      lastMessageAt_ = {};
-  }
   ImGui::SliderFloat("damping", &damping_, 0.0f, 1.0f,
                      dampingPainted ? "painted, mean %.4f kg/s" : "%.4f kg/s",
                      ImGuiSliderFlags_Logarithmic);

@@ -99,6 +99,7 @@ class Window {
   // Panels (panels.cpp).
   void panels();
   void simulationPanel(const Snapshot& s);
+  void followModel(const Snapshot& s);
   void toolPanel(const Snapshot& s);
   void displayPanel(const Snapshot& s);
   void plotStrip();
