@@ -1204,13 +1204,10 @@ void Window::stepScript() {
              {"damping_slider", damping_},
              {"damping_painted", s.maxDamping > s.minDamping},
              {"plot_samples", plots_.count},
-             {"plot_time_max",
-              [&] {
-                double latest = 0.0;
-                for (int i = 0; i < plots_.count; ++i)
-                  latest = std::max(latest, plots_.time[static_cast<size_t>(plots_.at(i))]);
-                return latest;
-              }()},
+             // The newest sample's time: the ring's times never go back (PlotSeries::push).
+             {"plot_time_max", plots_.count > 0
+                                   ? plots_.time[static_cast<size_t>(plots_.at(plots_.count - 1))]
+                                   : 0.0},
              {"apply_time_step_enabled", timeStepPending_}});
       } else if (action == "save_scene" || action == "save_mesh") {
         // Relative paths are relative to the screenshot folder, so a script's outputs stay

@@ -195,6 +195,16 @@ void Window::panels() {
   popups(s);
 }
 
+// The scheme or slider differs from what the session runs: the slider is compared as it holds
+// the ratio (a float: a period compared with the float ratio times T_max differs by its
+// rounding).
+bool Window::timeStepChanged(const Snapshot& s) const {
+  const double period = dtRatio_ * s.tMax;
+  return static_cast<int>(s.scheme) != schemeIndex_ ||
+         (std::isfinite(period) && s.tMax > 0.0 &&
+          dtRatio_ != static_cast<float>(s.period / s.tMax));
+}
+
 // The sliders and switches follow the model (a new step, scheme or T_max, gravity, the cap,
 // the damping), first thing in a frame: a script's probe in the frame reads them as the
 // panels will show them (it read the time-step slider a frame late; a QA pass).
@@ -209,10 +219,7 @@ void Window::followModel(const Snapshot& s) {
     schemeIndex_ = static_cast<int>(s.scheme);
     if (std::isfinite(s.tMax) && s.tMax > 0.0) dtRatio_ = static_cast<float>(s.period / s.tMax);
   }
-  const double period = dtRatio_ * s.tMax;
-  timeStepPending_ =
-      static_cast<int>(s.scheme) != schemeIndex_ ||
-      (std::isfinite(period) && s.tMax > 0.0 && dtRatio_ != static_cast<float>(s.period / s.tMax));
+  timeStepPending_ = timeStepChanged(s);
   if (s.gravity != seenGravity_) {
     seenGravity_ = s.gravity;
     gravityOn_ = !s.gravity.isZero();
@@ -261,11 +268,7 @@ void Window::simulationPanel(const Snapshot& s) {
       "The time step as a fraction of equation 5's critical period T_max. Above the "
       "scheme's stable limit the simulation diverges (it is then rolled back and paused).");
   const double period = dtRatio_ * s.tMax;
-  // Changed when the slider is not at the running ratio as the slider holds it (a float: a
-  // period compared with the float ratio times T_max differs by its rounding).
-  const bool changed =
-      static_cast<int>(s.scheme) != schemeIndex_ ||
-      (std::isfinite(period) && s.tMax > 0.0 && dtRatio_ != static_cast<float>(s.period / s.tMax));
+  const bool changed = timeStepChanged(s);  // after the slider's and the combo's input
   timeStepPending_ = changed;
   if (!changed) ImGui::BeginDisabled();
   if (ImGui::Button("Apply time step")) {

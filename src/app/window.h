@@ -100,6 +100,7 @@ class Window {
   void panels();
   void simulationPanel(const Snapshot& s);
   void followModel(const Snapshot& s);
+  [[nodiscard]] bool timeStepChanged(const Snapshot& s) const;
   void toolPanel(const Snapshot& s);
   void displayPanel(const Snapshot& s);
   void plotStrip();

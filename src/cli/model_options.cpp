@@ -554,10 +554,6 @@ void RunOptions::prepare(const LoadedModel& loaded, Simulation& sim) const {
   for (const std::string& t : torques) addLoad(t, "--torque", true);
   // Constraints (section 6): the scene's, then the flags'. Errors name where they came from.
   addSceneConstraints(loaded, sim);
-  auto warnIfFar = [&](const std::string& what, Index vertex, const Vec3& target,
-                       const std::string& remedy) {
-    warnIfFarFromVertex(sim, what, vertex, target, remedy);
-  };
   auto constrain = [&](const std::vector<std::string>& texts, const std::string& flag,
                        bool position) {
     for (const std::string& text : texts) {
@@ -579,7 +575,7 @@ void RunOptions::prepare(const LoadedModel& loaded, Simulation& sim) const {
       if (position && v.value) {
         std::ostringstream remedy;
         remedy << flag << " " << text << ":0:1 moves it there over the first second";
-        warnIfFar(flag + " " + text, v.vertex, *v.value, remedy.str());
+        warnIfFarFromVertex(sim, flag + " " + text, v.vertex, *v.value, remedy.str());
       }
       try {
         if (position)

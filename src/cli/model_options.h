@@ -101,13 +101,13 @@ void checkDistinctOutputs(
 /// its busiest vertex where that may need much memory: an out-of-memory error names it.
 std::string& modelInWork();
 
-/// An output naming one of the run's inputs would destroy it: InvalidInputError "<flag>:
-/// <path> is the model's file" (or the scene's mesh, --state-in's file, --script's file) "and would
-/// be overwritten". --state-out may name --state-in's file: a state carried on in place.
 /// The scene's constraints added to `sim` (errors name the scene and the constraint's JSON
 /// pointer; a target far from its vertex is warned of). RunOptions::prepare and info.
 void addSceneConstraints(const LoadedModel& loaded, Simulation& sim);
 
+/// An output naming one of the run's inputs would destroy it: InvalidInputError "<flag>:
+/// <path> is the model's file" (or the scene's mesh, --state-in's file, --script's file) "and would
+/// be overwritten". --state-out may name --state-in's file: a state carried on in place.
 void checkOutputsSpareInputs(
     std::initializer_list<std::pair<const char*, const std::string*>> outputs,
     const LoadedModel& loaded, const std::string& stateIn = "", const std::string& script = "");

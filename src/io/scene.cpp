@@ -720,7 +720,7 @@ SceneDescription parseScene(std::string_view text, const std::string& sceneFile)
     json = Json::parse(text, noDuplicateKeys);
   } catch (const Json::out_of_range& e) {
     // "number overflow parsing '1e400'": the parser says no place, so the value is named by
-    // the keys the parse had reached (an array's element by its array's key).
+    // the keys and array indices the parse had reached.
     std::string what = e.what();
     const auto quote = what.find('\'');
     const std::string path = pointer(objects.size());
