@@ -124,7 +124,8 @@ inline void armsSinCos(double ux, double uy, double uz, double wx, double wy, do
 // curvature (C2, so that the schemes' error expansions hold through it): c = D / (8 eps^3),
 // b = (eps - 3 D / 2) / (2 eps), a = (eps - D)^2 / 2 - b eps^2 - c eps^4. Its curvature
 // runs from 2b (>= -2 at eps = D / 2) to 1: the cap is no stiffer than the spring.
-inline void angleProfile(double theta, double rest, double& slope, double& twiceEnergy) {
+inline void angleProfile(double theta, double rest, double& slope, double& twiceEnergy,
+                         bool& inCap) {
   const double psi = kPi - theta, toStraight = kPi - rest;
   const double epsStraight = std::min(0.5 * toStraight, kAngleCapWidth);
   const double epsFolded = std::min(0.5 * rest, kAngleCapWidth);
@@ -146,28 +147,66 @@ inline void angleProfile(double theta, double rest, double& slope, double& twice
   // d/dtheta = -d/dp at straight, +d/dp at folded.
   slope = select(straight, -capSlope, select(folded, capSlope, excess));
   twiceEnergy = select(capped, capTwice, excess * excess);
+  inCap = capped;
 }
 
-// beta = slope / sin(theta), theta = atan2(sin, cos) in [0, pi] and slope angleProfile's
-// (theta - theta_0 away from its caps), and twiceEnergy (the spring's energy is
-// kappa_theta/2 twiceEnergy); both zero when the sine is 1e-12 or less (those angles are the
-// caller's: angleSpringForce handles them). atan x and 1 / sin with it cost one division
-// (atanParts), the profile one more. The arms are unit vectors, so max(|sin|, |cos|) >=
-// 1/sqrt(2) and nothing under- or overflows.
-inline double angleBeta(double s, double c, double rest, double& twiceEnergy) {
+inline void angleProfile(double theta, double rest, double& slope, double& twiceEnergy) {
+  bool inCap;
+  angleProfile(theta, rest, slope, twiceEnergy, inCap);
+}
+
+// theta = atan2(sin, cos) in [0, pi] and the factor 1 / sin that angleBeta multiplies the
+// slope by (0 when the sine is 1e-12 or less: regular false). atan x and 1 / sin with it cost
+// one division (atanParts). The arms are unit vectors, so max(|sin|, |cos|) >= 1/sqrt(2) and
+// nothing under- or overflows.
+inline double angleAndInverseSine(double s, double c, double& inverseSine, bool& regular) {
   bool sinLarger, reduce;
   double num, den, n2, pt, qt;
   atanParts(s, c, sinLarger, reduce, num, den, n2, pt, qt);
-  const bool regular = s > 1e-12;
+  regular = s > 1e-12;
   const double safeSine = select(regular, s, 1.0);
   const double denominator = select(regular, den * qt, 1.0);
   const double inv = 1.0 / (denominator * safeSine);
   const double t0 = num * (qt + n2 * pt) * safeSine * inv;
-  const double theta = angleFromAtan(t0, reduce, sinLarger, c);
+  inverseSine = denominator * inv;
+  return angleFromAtan(t0, reduce, sinLarger, c);
+}
+
+// beta = slope / sin(theta), slope angleProfile's (theta - theta_0 away from its caps), and
+// twiceEnergy (the spring's energy is kappa_theta/2 twiceEnergy); both zero when the sine is
+// 1e-12 or less (those angles are the caller's: angleSpringForce handles them); capped where
+// the profile took a cap. The profile costs one more division.
+inline double angleBeta(double s, double c, double rest, double& twiceEnergy, bool& capped) {
+  double inverseSine;
+  bool regular, inCap;
+  const double theta = angleAndInverseSine(s, c, inverseSine, regular);
   double slope, e2;
-  angleProfile(theta, rest, slope, e2);
+  angleProfile(theta, rest, slope, e2, inCap);
   twiceEnergy = select(regular, e2, 0.0);
-  return select(regular, slope, 0.0) * (denominator * inv);
+  capped = regular & inCap;
+  return select(regular, slope, 0.0) * inverseSine;
+}
+
+inline double angleBeta(double s, double c, double rest, double& twiceEnergy) {
+  bool capped;
+  return angleBeta(s, c, rest, twiceEnergy, capped);
+}
+
+// angleBeta for an angle outside its caps, where the profile is theta - theta_0: the same
+// bits as angleBeta's there. capped is set where angleBeta's would be (the profile's tests,
+// expression for expression), and there beta and twiceEnergy are not angleBeta's: the caller
+// takes those angles again with angleBeta (runAngleRows).
+inline double angleBetaUncapped(double s, double c, double rest, double& twiceEnergy,
+                                bool& capped) {
+  double inverseSine;
+  bool regular;
+  const double theta = angleAndInverseSine(s, c, inverseSine, regular);
+  const bool straight = kPi - theta < std::min(0.5 * (kPi - rest), kAngleCapWidth);
+  const bool folded = theta < std::min(0.5 * rest, kAngleCapWidth);
+  capped = regular & (straight | folded);
+  const double excess = theta - rest;
+  twiceEnergy = select(regular, excess * excess, 0.0);
+  return select(regular, excess, 0.0) * inverseSine;
 }
 
 // potentialEnergy's and gravityEnergy's sums are taken in this many fixed contiguous parts,
@@ -720,6 +759,48 @@ ZSCULPT_KERNEL double angleForces(Index m, const Index* __restrict p, const Inde
                                          fbx, fby, fbz, excess2);
 }
 
+// One pair of arms (u, w) across a run of L vertices (runAngleRows): the angles' forces
+// added to the arms' sums, their sines to si, their squared excesses to excess2 (kEnergy);
+// rest angles at rest[pairs i]. With kCaps angleBeta, else angleBetaUncapped. Returns
+// whether an angle was in its cap.
+template <bool kEnergy, bool kCaps>
+[[gnu::always_inline]] inline int anglePairRows(
+    Index count, Index pairs, const double* __restrict ux, const double* __restrict uy,
+    const double* __restrict uz, const double* __restrict iu, const double* __restrict wx,
+    const double* __restrict wy, const double* __restrict wz, const double* __restrict iw,
+    const double* __restrict rest, double* __restrict si, double* __restrict gax,
+    double* __restrict gay, double* __restrict gaz, double* __restrict gbx, double* __restrict gby,
+    double* __restrict gbz, double* __restrict excess2, double& smallest) {
+  int capped = 0;
+  double least = smallest;
+#pragma omp simd reduction(min : least) reduction(| : capped)
+  for (Index i = 0; i < count; ++i) {
+    const double c = ux[i] * wx[i] + uy[i] * wy[i] + uz[i] * wz[i];
+    const double cx = uy[i] * wz[i] - uz[i] * wy[i], cy = uz[i] * wx[i] - ux[i] * wz[i],
+                 cz = ux[i] * wy[i] - uy[i] * wx[i];
+    const double s = std::sqrt(cx * cx + cy * cy + cz * cz);
+    si[i] = s;
+    least = std::min(least, s);
+    double twiceEnergy;
+    bool inCap;
+    const double beta = kCaps ? angleBeta(s, c, rest[pairs * i], twiceEnergy, inCap)
+                              : angleBetaUncapped(s, c, rest[pairs * i], twiceEnergy, inCap);
+    capped |= static_cast<int>(inCap);
+    if constexpr (kEnergy) excess2[i] += twiceEnergy;
+    double fa0, fa1, fa2, fb0, fb1, fb2;
+    ZSCULPT_ANGLE_FORCE(beta, c, ux[i], uy[i], uz[i], iu[i], wx[i], wy[i], wz[i], iw[i], fa0, fa1,
+                        fa2, fb0, fb1, fb2);
+    gax[i] += fa0;
+    gay[i] += fa1;
+    gaz[i] += fa2;
+    gbx[i] += fb0;
+    gby[i] += fb1;
+    gbz[i] += fb2;
+  }
+  smallest = least;
+  return capped;
+}
+
 // A run of L vertices of one degree with every angle spring on: the arms transposed by slot
 // (arm a of the run's vertex i at a L + i), angle (a, b) = pair k of vertex i at k L + i
 // (its rest angle at rest[k + pairs i]). Per arm slot a, gx.. (degree L) get the sum of its
@@ -735,50 +816,46 @@ template <bool kEnergy>
     const Index* __restrict pairB, const double* __restrict ax, const double* __restrict ay,
     const double* __restrict az, const double* __restrict il, const double* __restrict rest,
     double* __restrict sine, double* __restrict gx, double* __restrict gy, double* __restrict gz,
-    double* __restrict excess2) {
+    double* __restrict excess2, unsigned char* __restrict capsTaken) {
   double smallest = 1.0;
-  if constexpr (kEnergy)
-    for (Index i = 0; i < count; ++i) excess2[i] = 0.0;
-  for (Index i = 0; i < degree * count; ++i) gx[i] = gy[i] = gz[i] = 0.0;
-  for (Index k = 0; k < pairs; ++k) {
-    const Index a = pairA[k] * count, b = pairB[k] * count;
-    const double* __restrict ux = ax + a;
-    const double* __restrict uy = ay + a;
-    const double* __restrict uz = az + a;
-    const double* __restrict iu = il + a;
-    const double* __restrict wx = ax + b;
-    const double* __restrict wy = ay + b;
-    const double* __restrict wz = az + b;
-    const double* __restrict iw = il + b;
-    // Arms a and b differ (a < b): their sums do not overlap.
-    double* __restrict gax = gx + a;
-    double* __restrict gay = gy + a;
-    double* __restrict gaz = gz + a;
-    double* __restrict gbx = gx + b;
-    double* __restrict gby = gy + b;
-    double* __restrict gbz = gz + b;
-    double* __restrict si = sine + k * count;
-#pragma omp simd reduction(min : smallest)
-    for (Index i = 0; i < count; ++i) {
-      const double c = ux[i] * wx[i] + uy[i] * wy[i] + uz[i] * wz[i];
-      const double cx = uy[i] * wz[i] - uz[i] * wy[i], cy = uz[i] * wx[i] - ux[i] * wz[i],
-                   cz = ux[i] * wy[i] - uy[i] * wx[i];
-      const double s = std::sqrt(cx * cx + cy * cy + cz * cz);
-      si[i] = s;
-      smallest = std::min(smallest, s);
-      double twiceEnergy;
-      const double beta = angleBeta(s, c, rest[k + pairs * i], twiceEnergy);
-      if constexpr (kEnergy) excess2[i] += twiceEnergy;
-      double fa0, fa1, fa2, fb0, fb1, fb2;
-      ZSCULPT_ANGLE_FORCE(beta, c, ux[i], uy[i], uz[i], iu[i], wx[i], wy[i], wz[i], iw[i], fa0, fa1,
-                          fa2, fb0, fb1, fb2);
-      gax[i] += fa0;
-      gay[i] += fa1;
-      gaz[i] += fa2;
-      gbx[i] += fb0;
-      gby[i] += fb1;
-      gbz[i] += fb2;
+  // A second pass, every pair with angleBeta, only when the first took an angle in its cap as
+  // if outside it.
+  for (bool second = false;; second = true) {
+    smallest = 1.0;
+    if constexpr (kEnergy)
+      for (Index i = 0; i < count; ++i) excess2[i] = 0.0;
+    for (Index i = 0; i < degree * count; ++i) gx[i] = gy[i] = gz[i] = 0.0;
+    int missedCap = 0;
+    for (Index k = 0; k < pairs; ++k) {
+      const Index a = pairA[k] * count, b = pairB[k] * count;
+      const double* __restrict ux = ax + a;
+      const double* __restrict uy = ay + a;
+      const double* __restrict uz = az + a;
+      const double* __restrict iu = il + a;
+      const double* __restrict wx = ax + b;
+      const double* __restrict wy = ay + b;
+      const double* __restrict wz = az + b;
+      const double* __restrict iw = il + b;
+      // Arms a and b differ (a < b): their sums do not overlap.
+      double* __restrict gax = gx + a;
+      double* __restrict gay = gy + a;
+      double* __restrict gaz = gz + a;
+      double* __restrict gbx = gx + b;
+      double* __restrict gby = gy + b;
+      double* __restrict gbz = gz + b;
+      double* __restrict si = sine + k * count;
+      const bool withCaps = second || capsTaken[k] != 0;
+      const int capped =
+          withCaps
+              ? anglePairRows<kEnergy, true>(count, pairs, ux, uy, uz, iu, wx, wy, wz, iw, rest + k,
+                                             si, gax, gay, gaz, gbx, gby, gbz, excess2, smallest)
+              : anglePairRows<kEnergy, false>(count, pairs, ux, uy, uz, iu, wx, wy, wz, iw,
+                                              rest + k, si, gax, gay, gaz, gbx, gby, gbz, excess2,
+                                              smallest);
+      if (!withCaps) missedCap |= capped;
+      capsTaken[k] = static_cast<unsigned char>(capped != 0);
     }
+    if (!missedCap) break;
   }
   return smallest;
 }
@@ -790,11 +867,11 @@ ZSCULPT_KERNEL double runAngles(Index pairs, Index count, Index degree,
                                 const double* __restrict az, const double* __restrict il,
                                 const double* __restrict rest, double* __restrict sine,
                                 double* __restrict gx, double* __restrict gy, double* __restrict gz,
-                                double* __restrict excess2) {
+                                double* __restrict excess2, unsigned char* __restrict capsTaken) {
   return excess2 ? runAngleRows<true>(pairs, count, degree, pairA, pairB, ax, ay, az, il, rest,
-                                      sine, gx, gy, gz, excess2)
+                                      sine, gx, gy, gz, excess2, capsTaken)
                  : runAngleRows<false>(pairs, count, degree, pairA, pairB, ax, ay, az, il, rest,
-                                       sine, gx, gy, gz, excess2);
+                                       sine, gx, gy, gz, excess2, capsTaken);
 }
 
 // Arms of a uniform chunk (L = count vertices from c0, of one degree), by slot: arm a of
@@ -1119,6 +1196,7 @@ ForceKernel::ForceKernel(const Model& model, int maxThreads) {
     }
     termStart_.push_back(0);
   }
+  if (canonicalAngles_ && !reference_) capsTaken_.assign(angles.angles.size(), 0);
   const int threads = maxThreads > 0 ? maxThreads : availableThreads();
   scratch_.resize(static_cast<size_t>(threads));
   for (Scratch& s : scratch_) {
@@ -1165,7 +1243,8 @@ size_t ForceKernel::bytes() const {
         &armTerm_})
     total += v->capacity() * sizeof(Index);
   total += (halo_.capacity() + blockEnergy_.capacity()) * sizeof(double) +
-           blockHasAngles_.capacity() + static_cast<size_t>(edgeKappa_.size()) * sizeof(double);
+           blockHasAngles_.capacity() + capsTaken_.capacity() +
+           static_cast<size_t>(edgeKappa_.size()) * sizeof(double);
   for (const Scratch& s : scratch_) {
     for (const auto* v : {&s.acc,    &s.ax,   &s.ay, &s.az, &s.length, &s.invLength, &s.gx,
                           &s.gy,     &s.gz,   &s.tx, &s.ty, &s.tz,     &s.tl,        &s.rest,
@@ -1332,9 +1411,9 @@ void ForceKernel::scatterBlock(const Model& model, const Points& position, Point
     const Index pairs = degree * (degree - 1) / 2;
     const Index* pa = pairA_.data() + pairStart_[static_cast<size_t>(degree)];
     const Index* pb = pairB_.data() + pairStart_[static_cast<size_t>(degree)];
-    const double smallest =
-        runAngles(pairs, count, degree, pa, pb, tx, ty, tz, tl, restAngle + angleOffsets[v],
-                  s.sine.data(), s.gx.data(), s.gy.data(), s.gz.data(), excess2);
+    const double smallest = runAngles(
+        pairs, count, degree, pa, pb, tx, ty, tz, tl, restAngle + angleOffsets[v], s.sine.data(),
+        s.gx.data(), s.gy.data(), s.gz.data(), excess2, capsTaken_.data() + angleOffsets[v]);
     // deposit's products and centre sums for all the run's vertices at once (fx.. are free
     // scratch on this path): the same values, leaving deposit the scattered additions.
     double* cx = s.fx.data();

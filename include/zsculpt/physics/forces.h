@@ -230,6 +230,11 @@ class ForceKernel {
   /// order. Offsets per degree in pairStart_ / termStart_ (arm terms: CSR by degree then arm).
   std::vector<Index> pairStart_, pairA_, pairB_, termStart_, armTermStart_, armTerm_;
   Index maxAngles_ = 0;
+  /// Per angle, at the angles of a by-slot run's first vertex (one per pair of arms): whether
+  /// the run's angles of that pair were in a cap at the last evaluation, so that the next
+  /// takes them with the cap and the others without (forces.cpp, runAngleRows). A guess that
+  /// only decides speed: the forces are the same bits either way.
+  std::vector<std::uint8_t> capsTaken_;
   /// Angle arms that are not edges of the centre: use the serial reference instead.
   bool reference_ = false;
   Index chunkVertices_ = 64;
