@@ -156,9 +156,9 @@ inline void angleProfile(double theta, double rest, double& slope, double& twice
 }
 
 // theta = atan2(sin, cos) in [0, pi] and the factor 1 / sin that angleBeta multiplies the
-// slope by (0 when the sine is 1e-12 or less: regular false). atan x and 1 / sin with it cost
-// one division (atanParts). The arms are unit vectors, so max(|sin|, |cos|) >= 1/sqrt(2) and
-// nothing under- or overflows.
+// slope by (1 when the sine is 1e-12 or less, regular false: the caller zeroes the slope). atan x
+// and 1 / sin with it cost one division (atanParts). The arms are unit vectors, so max(|sin|,
+// |cos|) >= 1/sqrt(2) and nothing under- or overflows.
 inline double angleAndInverseSine(double s, double c, double& inverseSine, bool& regular) {
   bool sinLarger, reduce;
   double num, den, n2, pt, qt;
@@ -810,6 +810,14 @@ template <bool kEnergy, bool kCaps>
 // once, rather than stored per angle and summed in a pass of their own). sine gets the
 // sines (k L + i), for the degenerate angles' check; with kEnergy excess2[i] the sum of
 // vertex i's squared excesses. Returns the smallest sine.
+// The cap of an angle spring (angleProfile) costs a division and a polynomial (a fifth of
+// the force pass: docs/performance.md) and is reached only within kAngleCapWidth of straight
+// or folded. capsTaken[k] (one per pair, kept by the caller from call to call) says whether
+// pair k had an angle in its cap the last time; the pairs that had not are taken without
+// the cap (angleBetaUncapped, the same bits where no angle is in one), and if one of them now
+// has an angle in its cap the whole run is taken again with it. On a fine surface the
+// opposite arms are within a few hundredths of straight at rest and reach their caps
+// often; the neighbouring ones do not.
 template <bool kEnergy>
 [[gnu::always_inline]] inline double runAngleRows(
     Index pairs, Index count, Index degree, const Index* __restrict pairA,
@@ -817,7 +825,7 @@ template <bool kEnergy>
     const double* __restrict az, const double* __restrict il, const double* __restrict rest,
     double* __restrict sine, double* __restrict gx, double* __restrict gy, double* __restrict gz,
     double* __restrict excess2, unsigned char* __restrict capsTaken) {
-  double smallest = 1.0;
+  double smallest;
   // A second pass, every pair with angleBeta, only when the first took an angle in its cap as
   // if outside it.
   for (bool second = false;; second = true) {
