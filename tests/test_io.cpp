@@ -1463,6 +1463,13 @@ TEST_F(SceneFile, InvalidScenesNameTheJsonPathAndReason) {
        "/constraints/1/target/2: the number '-1e999' is beyond a double's range"},
       {with(R"("a/b": [[1, 2], {"c~": [3, 4e999]}])"),
        "/a~1b/1/c~0/1: the number '4e999' is beyond a double's range"},
+      // Below a double's range: the parser read 0 and said nothing ("mass must be > 0, got 0";
+      // a damping of 1e-400 was none). 0e-999 and 1e-310 (a subnormal) read as written.
+      {with(R"("properties": {"mass": 1e-400})"),
+       "/properties/mass: the number '1e-400' is below a double's range (it would read as 0)"},
+      {with(R"("description": "1e-999 \"2e-999\"", "rest_lengths": {"indices": [0, 1],
+               "values": [0e-999, -2.5E-400]}, "properties": {"damping": 1e-310})"),
+       "/rest_lengths/values/1: the number '-2.5E-400' is below a double's range"},
       // A key given twice in one object (the parser kept the last one silently).
       {with(R"("mesh": "builtin:grid")"), "/mesh: given twice"},
       {with(R"("properties": {"mass": 1, "mass": 2})"), "/properties/mass: given twice"},

@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <array>
 #include <cerrno>
+#include <charconv>
 #include <cmath>
 #include <cstdint>
 #include <cstdio>
@@ -665,6 +666,47 @@ SceneDescription sceneFromJson(const Json& json, const std::string& sceneFile) {
   return scene;
 }
 
+// The number literals of a JSON text in document order (the order of the parser's value
+// events for numbers), each with whether it is not zero but lies below a double's range: the
+// parser reads 1e-400 as 0 without a word, and a scene's "mass": 1e-400 was then refused as
+// "must be > 0, got 0". (On text that is not JSON the list may be off; the parse fails then.)
+std::vector<bool> numbersBelowRange(std::string_view text, std::vector<std::string>& literals) {
+  std::vector<bool> below;
+  for (size_t i = 0; i < text.size();) {
+    const char c = text[i];
+    if (c == '"') {
+      for (++i; i < text.size() && text[i] != '"'; i += text[i] == '\\' ? 2 : 1) {
+      }
+      ++i;
+      continue;
+    }
+    if (c != '-' && (c < '0' || c > '9')) {
+      ++i;
+      continue;
+    }
+    size_t end = i + 1;
+    while (end < text.size() && (std::strchr("0123456789+-.eE", text[end]) != nullptr) &&
+           text[end] != '\0')
+      ++end;
+    const std::string_view literal = text.substr(i, end - i);
+    bool nonzero = false;
+    for (char d : literal) {
+      if (d == 'e' || d == 'E') break;
+      nonzero = nonzero || (d >= '1' && d <= '9');
+    }
+    double value = 0.0;
+    const auto result = std::from_chars(literal.data(), literal.data() + literal.size(), value);
+    const size_t exponent = literal.find_first_of("eE");
+    const bool tiny = nonzero && (result.ec == std::errc::result_out_of_range || value == 0.0) &&
+                      exponent != std::string_view::npos && exponent + 1 < literal.size() &&
+                      literal[exponent + 1] == '-';
+    below.push_back(tiny);
+    literals.emplace_back(tiny ? literal : std::string_view());
+    i = end;
+  }
+  return below;
+}
+
 SceneDescription parseScene(std::string_view text, const std::string& sceneFile) {
   const std::string name = sceneFile.empty() ? "<scene>" : sceneFile;
   Json json;
@@ -690,6 +732,10 @@ SceneDescription parseScene(std::string_view text, const std::string& sceneFile)
     if (!objects.empty() && objects.back().array) ++objects.back().count;
   };
   std::string duplicate;
+  std::vector<std::string> literals;
+  const std::vector<bool> belowRange = numbersBelowRange(text, literals);
+  size_t numbersRead = 0;
+  std::string tooSmall;
   auto noDuplicateKeys = [&](int, Json::parse_event_t event, Json& parsed) {
     switch (event) {
       case Json::parse_event_t::object_start:
@@ -704,6 +750,13 @@ SceneDescription parseScene(std::string_view text, const std::string& sceneFile)
         elementRead();
         break;
       case Json::parse_event_t::value:  // a number, string, boolean or null
+        if (parsed.is_number()) {
+          if (numbersRead < belowRange.size() && belowRange[numbersRead] &&
+              parsed.get<double>() == 0.0 && tooSmall.empty())
+            tooSmall = pointer(objects.size()) + ": the number '" + literals[numbersRead] +
+                       "' is below a double's range (it would read as 0)";
+          ++numbersRead;
+        }
         elementRead();
         break;
       case Json::parse_event_t::key: {
@@ -737,6 +790,7 @@ SceneDescription parseScene(std::string_view text, const std::string& sceneFile)
     throw InvalidInputError(name + ": " + what);
   }
   if (!duplicate.empty()) throw InvalidInputError(name + ": " + duplicate + ": given twice");
+  if (!tooSmall.empty()) throw InvalidInputError(name + ": " + tooSmall);
   return sceneFromJson(json, sceneFile);
 }
 
