@@ -1365,6 +1365,73 @@ TEST_F(Cli, RenderRefusedPartWayLeavesNoFramesBehind) {
                      2, "/edits/0");
   EXPECT_TRUE(fs::exists(path("kept/notes.txt")));
   EXPECT_FALSE(fs::exists(path("kept/frame_0000.png")));
+  // Over an earlier run's frames, which stay as they were: the refused run wrote its own over
+  // them and then took those away, leaving two frames fewer and a mix of the two runs (a QA
+  // pass). Its frames now wait in a folder of their own until the run ends.
+  ASSERT_EQ(run("render builtin:torus --perturb 0.1 --steps 8 --frames 5 --size 64x64 --out " +
+                path("kept"))
+                .status,
+            0);
+  std::vector<std::string> before;
+  for (int f = 0; f < 5; ++f)
+    before.push_back(slurp(path("kept/frame_000" + std::to_string(f) + ".png")));
+  expectOneLineError(run("render " + path("late.json") +
+                         " --time 4 --frames 5 --size 64x64 --out " + path("kept")),
+                     2, "/edits/0");
+  for (int f = 0; f < 5; ++f)
+    EXPECT_EQ(slurp(path("kept/frame_000" + std::to_string(f) + ".png")), before[f]) << f;
+  for (const auto& entry : fs::directory_iterator(path("kept")))
+    EXPECT_EQ(entry.path().filename().string().rfind(".zsculpt", 0), std::string::npos)
+        << entry.path();
+}
+
+TEST_F(Cli, AnInterruptedRunLeavesNoOutputAndEndsByItsSignal) {
+  // SIGTERM (timeout, a CI job cancelled) or SIGINT (Ctrl-C) in the middle of a render left
+  // the frames written so far, without diagnostics or plot, and over an earlier run's ones a
+  // mix of the two; a simulate stopped while saving left its temporary file. The run now
+  // stops between two cycles, takes away what it wrote, says so and ends by the signal.
+  ASSERT_EQ(run("render builtin:torus --perturb 0.1 --steps 8 --frames 3 --size 64x64 --out " +
+                path("earlier"))
+                .status,
+            0);
+  const std::string earlier = slurp(path("earlier/frame_0000.png"));
+  for (const std::string& signal : {std::string("TERM"), std::string("INT")}) {
+    // Two frames: the first at the start, the second at the end of a run far longer than the
+    // 1.5 s it is given.
+    const std::string command =
+        "timeout -s " + signal + " 1.5 " + std::string(ZSCULPT_BINARY) +
+        " render builtin:torus --perturb 0.1 --steps 5000000 --frames 2 --size 64x64 "
+        "--no-progress --out " +
+        path("earlier") + " --csv " + path("d.csv") + " 2>" + path("err") + " </dev/null";
+    const int raw = std::system(command.c_str());
+    ASSERT_TRUE(WIFEXITED(raw));
+    EXPECT_EQ(WEXITSTATUS(raw), 124);  // timeout's: it sent the signal
+    const std::string err = slurp(path("err"));
+    EXPECT_NE(err.find("zsculpt: error: interrupted by SIG" + signal +
+                       ": the run stopped and left no output"),
+              std::string::npos)
+        << err;
+    EXPECT_EQ(slurp(path("earlier/frame_0000.png")), earlier);
+    EXPECT_FALSE(fs::exists(path("d.csv")));
+    size_t entries = 0;
+    for (const auto& entry : fs::directory_iterator(path("earlier"))) {
+      ++entries;
+      EXPECT_EQ(entry.path().filename().string().rfind(".zsculpt", 0), std::string::npos)
+          << entry.path();
+    }
+    EXPECT_EQ(entries, 5u);  // three frames, the diagnostics and the plot
+  }
+  // simulate writes at the end only, so it writes nothing.
+  const std::string command = "timeout 1.5 " + std::string(ZSCULPT_BINARY) +
+                              " simulate builtin:torus --perturb 0.1 --steps 5000000 --csv " +
+                              path("s.csv") + " --state-out " + path("s.state") + " 2>" +
+                              path("err") + " </dev/null >/dev/null";
+  const int raw = std::system(command.c_str());
+  ASSERT_TRUE(WIFEXITED(raw));
+  EXPECT_EQ(WEXITSTATUS(raw), 124);
+  EXPECT_NE(slurp(path("err")).find("interrupted by SIGTERM"), std::string::npos);
+  EXPECT_FALSE(fs::exists(path("s.csv")));
+  EXPECT_FALSE(fs::exists(path("s.state")));
 }
 
 TEST_F(Cli, ASceneSeedIsThirtyTwoBitsAsOnTheCommandLine) {

@@ -3,12 +3,14 @@
 #include <CLI/CLI.hpp>
 #include <cerrno>
 #include <charconv>
+#include <csignal>
 #include <cstring>
 #include <iostream>
 #include <regex>
 #include <string>
 
 #include "commands.h"
+#include "console.h"
 #include "model_options.h"
 #include "zsculpt/core/errors.h"
 
@@ -111,6 +113,13 @@ int run(int argc, char** argv) {
   } catch (const DivergenceError& e) {
     std::cerr << "zsculpt: error: " << oneLine(e.what()) << "\n";
     return 3;
+  } catch (const InterruptedError& e) {
+    // Said, then ended by the signal itself, as the shell and `timeout` expect.
+    std::cerr << "zsculpt: error: " << oneLine(e.what()) << "\n";
+    std::cerr.flush();
+    std::signal(e.signal(), SIG_DFL);
+    std::raise(e.signal());
+    return 128 + e.signal();
   } catch (const Error& e) {
     std::cerr << "zsculpt: error: " << oneLine(e.what()) << "\n";
     return 2;

@@ -28,6 +28,7 @@ struct SimulateOptions {
 };
 
 int runSimulate(const SimulateOptions& options) {
+  const Interruptions interruptions;
   const LoadedModel loaded = options.model.load();
   const RunOptions::Resolved resolved = options.run.resolve(loaded);
   Simulation sim(loaded.model, resolved.settings);
@@ -95,6 +96,7 @@ int runSimulate(const SimulateOptions& options) {
   }
   const double wall =
       std::chrono::duration<double>(std::chrono::steady_clock::now() - wallStart).count();
+  throwIfInterrupted();  // a signal in the loading or the last cycle: nothing written yet
   if (wantCsv)
     io::writeFileAtomically(options.run.csv, [&](std::ostream& out) { out << csv.str(); });
   if (!options.run.stateOut.empty()) io::saveState(run.lastGood(), options.run.stateOut);

@@ -5,6 +5,8 @@
 
 #include <string>
 
+#include "zsculpt/core/errors.h"
+
 namespace zsculpt::cli {
 
 /// "zsculpt: warning: TEXT" on a line of its own.
@@ -14,5 +16,32 @@ void warn(const std::string& text);
 /// warning has cleared it since, so that it must be drawn again.
 void progressLineDrawn(bool drawn);
 bool progressLineCleared();
+
+/// A headless run stopped by SIGINT, SIGTERM or SIGHUP between two cycles, having removed
+/// what it had written (the command line ends the process by that signal after saying so).
+class InterruptedError : public Error {
+ public:
+  explicit InterruptedError(int signal);
+  [[nodiscard]] int signal() const { return signal_; }
+
+ private:
+  int signal_;
+};
+
+/// While one lives, SIGINT, SIGTERM and SIGHUP only note that they came, so that simulate and
+/// render stop between cycles (throwIfInterrupted) rather than where they stand, which left
+/// frames of a half run or a temporary file half written; a third signal ends the process at
+/// once. A signal ignored at the start stays ignored. The handlers before are put back at the
+/// end.
+class Interruptions {
+ public:
+  Interruptions();
+  ~Interruptions();
+  Interruptions(const Interruptions&) = delete;
+  Interruptions& operator=(const Interruptions&) = delete;
+};
+
+/// Throws InterruptedError if a signal came while Interruptions lived.
+void throwIfInterrupted();
 
 }  // namespace zsculpt::cli

@@ -183,6 +183,7 @@ class ProgressBar {
 
 RenderJobResult runRenderJob(const RenderJobOptions& o) {
   namespace fs = std::filesystem;
+  const Interruptions interruptions;
   RenderJobResult result;
   // 1. Everything that can be refused, before any simulation work.
   render::parseImageSize(o.size, result.width, result.height, "--size");
@@ -361,17 +362,27 @@ RenderJobResult runRenderJob(const RenderJobOptions& o) {
     series.ly.push_back(d.angularMomentum.y());
     series.lz.push_back(d.angularMomentum.z());
   };
+  // The frames are written to a folder of their own in --out and moved to their names when
+  // the run ends (or diverges): a run refused or interrupted part way leaves the frames of
+  // an earlier run in --out as they were (it overwrote some, then took them away).
+  const fs::path staging = fs::path(o.out) / (".zsculpt-frames-" + std::to_string(::getpid()));
+  std::vector<std::string> staged;
   auto writeFrame = [&]() {
     char name[32];
     std::snprintf(name, sizeof name, "frame_%0*zu.png", digits, result.frames.size());
-    const std::string path = (fs::path(o.out) / name).string();
     // The folder the user named is made here, at the first write (checked, not made, before
     // the run), so that its error names it rather than a frame in it.
-    if (result.frames.empty()) io::ensureWritableDirectory(o.out);
+    if (result.frames.empty()) {
+      io::ensureWritableDirectory(o.out);
+      std::error_code ec;
+      fs::create_directory(staging, ec);
+      if (ec) throw IOError(staging.string() + ": cannot make it: " + ec.message());
+    }
     fillFrame();
     if (backAway) render::keepSceneInView(frame, aspect, 1.25, viewPoints, viewRefined);
-    renderer.renderPng(frame, result.width, result.height, path);
-    result.frames.push_back(path);
+    staged.push_back((staging / name).string());
+    renderer.renderPng(frame, result.width, result.height, staged.back());
+    result.frames.push_back((fs::path(o.out) / name).string());
     result.frameTimes.push_back(sim.time());
   };
 
@@ -379,12 +390,12 @@ RenderJobResult runRenderJob(const RenderJobOptions& o) {
   const auto wallStart = std::chrono::steady_clock::now();
   size_t next = 0;
   record(0, sim.diagnostics());
-  if (frameAt[next] == 0) {
-    writeFrame();
-    ++next;
-  }
   GuardedRun run(sim, edits);
   try {
+    if (frameAt[next] == 0) {
+      writeFrame();
+      ++next;
+    }
     for (long k = 1; k <= steps; ++k) {
       if (!run.step(k)) {
         result.diverged = true;
@@ -400,14 +411,23 @@ RenderJobResult runRenderJob(const RenderJobOptions& o) {
       progress.update(static_cast<double>(k) / static_cast<double>(steps),
                       static_cast<long>(result.frames.size()), static_cast<long>(frameAt.size()));
     }
+    throwIfInterrupted();
+    // The run's result (its frames up to the last good state, when it diverged): the frames
+    // to their names, over an earlier run's.
+    for (size_t f = 0; f < staged.size(); ++f) {
+      std::error_code ec;
+      fs::rename(staged[f], result.frames[f], ec);
+      if (ec) throw IOError(result.frames[f] + ": cannot write it: " + ec.message());
+    }
+    std::error_code ec;
+    fs::remove(staging, ec);
   } catch (...) {
-    // Refused or failed part way (a scene's edit out of range where it falls, a full disk,
-    // memory): the run leaves no output behind, so the frames it wrote go, and the folders it
-    // made if they are empty. A divergence is not thrown: its frames up to the last good
-    // state are the run's result.
+    // Refused, failed or interrupted part way (a scene's edit out of range where it falls, a
+    // full disk, memory, SIGTERM): the run leaves no output behind, so the frames it wrote
+    // go, and the folders it made if they are empty. A divergence is not thrown.
     progress.finish();
     std::error_code ec;
-    for (const std::string& written : result.frames) fs::remove(written, ec);
+    fs::remove_all(staging, ec);
     if (!madeFolder.empty())
       for (fs::path p = fs::absolute(o.out, ec).lexically_normal();; p = p.parent_path()) {
         if (!p.has_filename()) continue;

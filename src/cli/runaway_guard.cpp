@@ -14,6 +14,7 @@ void GuardedRun::tellWarnings() {
 }
 
 bool GuardedRun::step(long k) {
+  throwIfInterrupted();
   try {
     guard_.beforeStep(sim_, static_cast<std::uint64_t>(k - 1));
     edits_.beforeStep(sim_);
