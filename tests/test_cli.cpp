@@ -572,6 +572,12 @@ TEST_F(Cli, BadInputGetsOneLineAndExitTwoAndNoOutputFile) {
                      "--force a:0,0,1: 'a' is not a vertex index");
   expectOneLineError(run("simulate builtin:grid --pin 1.5"), 2,
                      "--pin 1.5: '1.5' is not a vertex index");
+  // In digits: "3.0" and "1e2" were taken as vertices 3 and 100 (a scene refuses them).
+  for (const char* pin : {"3.0", "1e2", "+3", " 3", "-0"})
+    expectOneLineError(run(std::string("simulate builtin:grid --pin '") + pin + "'"), 2,
+                       std::string("'") + pin + "' is not a vertex index");
+  expectOneLineError(run("simulate builtin:grid --force 3.:0,0,1"), 2,
+                     "'3.' is not a vertex index");
   expectOneLineError(run("bench --steps -1"), 2, "--steps: must be a whole number of steps");
   expectOneLineError(run("simulate builtin:grid --force 9999:0,0,1"), 2, "9999");
   expectOneLineError(run("simulate builtin:grid --force 3:0,zero,1"), 2, "--force");
@@ -1167,6 +1173,13 @@ TEST_F(Cli, ARefusedRunMakesNoFolderAndNamesTheFlagAtFault) {
                          " --csv " + dir_.string() + "/./same.csv"),
                      2, "is also --csv's file");
   EXPECT_FALSE(fs::exists(path("same.csv")));
+  // Also through a link to a file not made yet (the state replaced the diagnostics).
+  fs::create_symlink("same.csv", path("link.csv"));
+  expectOneLineError(run("simulate builtin:dodecahedron --steps 2 --csv " + path("same.csv") +
+                         " --state-out " + path("link.csv")),
+                     2, "is also --csv's file");
+  EXPECT_FALSE(fs::exists(path("same.csv")));
+  fs::remove(path("link.csv"));
   EXPECT_EQ(
       run("simulate builtin:dodecahedron --steps 2 --state-out /dev/null --csv /dev/null").status,
       0);
