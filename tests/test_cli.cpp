@@ -1398,6 +1398,32 @@ TEST_F(Cli, RenderRefusedPartWayLeavesNoFramesBehind) {
         << entry.path();
 }
 
+TEST_F(Cli, AModelFlagASceneSetsForEveryVertexIsSaidToChangeNothing) {
+  // Scenes the window saves carry a whole array for every painted property: --mass on one
+  // had no effect, silently (a QA pass). Where the scene sets only some vertices the flag
+  // sets the others, and nothing is said.
+  std::string values;
+  for (int v = 0; v < 100; ++v) values += std::string(v ? "," : "") + "0.2";
+  std::ofstream(path("all.json"))
+      << R"({"mesh": "builtin:torus", "vertex_properties": {"mass": {"values": [)" << values
+      << "]}}}";
+  const Result all = run("info " + path("all.json") + " --mass 3 --stiffness 4");
+  EXPECT_EQ(all.status, 0) << all.err;
+  EXPECT_NE(all.err.find("zsculpt: warning: --mass 3: " + path("all.json") +
+                         " gives every vertex its own mass (/vertex_properties/mass), so the "
+                         "flag changes nothing"),
+            std::string::npos)
+      << all.err;
+  EXPECT_EQ(all.err.find("--stiffness"), std::string::npos) << all.err;
+  EXPECT_NE(all.out.find("mass 0.2 .. 0.2"), std::string::npos) << all.out;
+  std::ofstream(path("some.json"))
+      << R"({"mesh": "builtin:torus", "vertex_properties": {"mass": {"indices": [0, 1], "value": 0.2}}})";
+  const Result some = run("info " + path("some.json") + " --mass 3");
+  EXPECT_EQ(some.status, 0) << some.err;
+  EXPECT_EQ(some.err.find("warning"), std::string::npos) << some.err;
+  EXPECT_NE(some.out.find("mass 0.2 .. 3"), std::string::npos) << some.out;
+}
+
 TEST_F(Cli, AnInterruptedRunLeavesNoOutputAndEndsByItsSignal) {
   // SIGTERM (timeout, a CI job cancelled) or SIGINT (Ctrl-C) in the middle of a render left
   // the frames written so far, without diagnostics or plot, and over an earlier run's ones a
