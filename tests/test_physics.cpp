@@ -514,6 +514,18 @@ TEST(Matrices, StiffnessIsASymmetricLaplacian) {
   EXPECT_LT(k.coeff(7, 8), -edgeStiffness(40.0, 5.0));
 }
 
+TEST(Matrices, ARestLengthWhoseSquareUnderflowsLeavesTMaxFinite) {
+  // 1e-170 squared is 0: with no angle stiffness the bound's 0 / 0 made the stiffness NaN and
+  // T_max "inf", and the run's first step non-finite (a QA pass). The springs without
+  // stiffness add nothing; with some, the bound is infinite and T_max 0 (refused as such).
+  Model model = withAngles(makeTorus(), 0.0);
+  const double period = criticalPeriod(SystemMatrices(model));
+  model.properties.restLength[0] = 1e-170;
+  EXPECT_EQ(criticalPeriod(SystemMatrices(model)), period);
+  model.properties.angularStiffness.setConstant(0.1);
+  EXPECT_EQ(criticalPeriod(SystemMatrices(model)), 0.0);
+}
+
 TEST(Matrices, TheAngleBoundUsesRestLengthsShorterThanTheLoadedOnes) {
   // A braced grid whose rest lengths are halved rests at half its size, where its angle
   // springs are four times as stiff as at the size it was loaded with. Omega^2 took the

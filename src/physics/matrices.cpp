@@ -73,9 +73,11 @@ double matrixEdgeStiffness(const Model& model, Index edge) {
   // Lengths compared, not squares: an unscaled rest length is the loaded length's square
   // root, and its square may differ from loaded2 in the last bit.
   const double length2 = rest > 0.0 && rest < std::sqrt(loaded2) ? rest * rest : loaded2;
+  // (A spring without stiffness adds nothing: skipped, as 0 / 0 where a rest length of
+  // 1e-170 squares to 0 made the stiffness NaN and T_max "inf".)
   for (Index angle : model.angles.edgeAngles.row(edge)) {
     const Index centre = model.angles.angles[angle][0];
-    kappa += 2.0 * p.angularStiffness[centre] / length2;
+    if (p.angularStiffness[centre] != 0.0) kappa += 2.0 * p.angularStiffness[centre] / length2;
   }
   return kappa;
 }
