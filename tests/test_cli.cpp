@@ -578,6 +578,17 @@ TEST_F(Cli, BadInputGetsOneLineAndExitTwoAndNoOutputFile) {
                        std::string("'") + pin + "' is not a vertex index");
   expectOneLineError(run("simulate builtin:grid --force 3.:0,0,1"), 2,
                      "'3.' is not a vertex index");
+  // A render keeps every step's energy and momentum: 1e18 s failed as "vector::reserve", and
+  // a huge --every overflowed its frame arithmetic (a QA pass).
+  expectOneLineError(run("render builtin:dodecahedron --perturb 0.1 --time 1e18 --frames 2 --size "
+                         "64x64 --out " +
+                         path("long")),
+                     2, "--time: ");
+  expectOneLineError(run("render builtin:dodecahedron --every 4611686018427387903 --frames 3 "
+                         "--size 64x64 --out " +
+                         path("long")),
+                     2, "so it runs at most 1000000000 steps");
+  EXPECT_FALSE(fs::exists(path("long")));
   expectOneLineError(run("bench --steps -1"), 2, "--steps: must be a whole number of steps");
   expectOneLineError(run("simulate builtin:grid --force 9999:0,0,1"), 2, "9999");
   expectOneLineError(run("simulate builtin:grid --force 3:0,zero,1"), 2, "--force");

@@ -74,6 +74,7 @@ void checkOwnFilesSpare(const RenderJobOptions& o, const LoadedModel& loaded, si
 
 constexpr long kDefaultFrames = 30;
 constexpr long kMaxFrames = 100000;
+constexpr long kMaxRenderSteps = 1000000000;
 
 /// The steps at which frames are taken: with --every K, 0, K, 2K ... up to the run's end
 /// (at most --frames of them); otherwise --frames (default 30) spread evenly over the run,
@@ -88,11 +89,27 @@ std::vector<long> frameSteps(const RenderJobOptions& o, RunOptions::Resolved& ru
     throw InvalidInputError("--frames: must be between 1 and " + std::to_string(kMaxFrames));
   if (o.every && *o.every < 1) throw InvalidInputError("--every: must be at least 1");
   long& steps = run.steps;
+  // A render keeps every step's energy and momenta for its plot and diagnostics (80 bytes a
+  // step and a line of text): 1e18 s asked for failed as "vector::reserve", and the frame
+  // arithmetic below overflowed (a QA pass).
+  auto checkLength = [&](long asked) {
+    if (asked > kMaxRenderSteps)
+      throw InvalidInputError(std::string(run.seconds ? "--time"
+                                          : o.every   ? "--every"
+                                                      : "--steps") +
+                              ": " + std::to_string(asked) +
+                              " steps: a render keeps every step's energy and momentum for " +
+                              "its plot, so it runs at most " + std::to_string(kMaxRenderSteps) +
+                              " steps");
+  };
+  checkLength(steps);
+  if (o.every) checkLength(*o.every);
   std::vector<long> at;
   if (o.every) {
     const long k = *o.every;
     // --frames N --every K with no run length: the run is just long enough for N frames.
     if (o.frames && !explicitLength) steps = (*o.frames - 1) * k;
+    checkLength(steps);
     for (long s = 0; s <= steps; s += k) {
       if (o.frames && static_cast<long>(at.size()) >= *o.frames) break;
       at.push_back(s);
@@ -123,6 +140,7 @@ std::vector<long> frameSteps(const RenderJobOptions& o, RunOptions::Resolved& ru
           << "ends at " << *run.seconds << " s";
       warn(msg.str());
     }
+    checkLength(fitted);
     steps = fitted;
     run.settings.period = period;
   }
