@@ -30,6 +30,7 @@ struct SimulateOptions {
 int runSimulate(const SimulateOptions& options) {
   const Interruptions interruptions;
   const LoadedModel loaded = options.model.load();
+  throwIfInterrupted();  // a big model loads for a while: a Ctrl+C then ends it here
   const RunOptions::Resolved resolved = options.run.resolve(loaded);
   Simulation sim(loaded.model, resolved.settings);
   options.run.prepare(loaded, sim);
@@ -100,6 +101,7 @@ int runSimulate(const SimulateOptions& options) {
   if (wantCsv)
     io::writeFileAtomically(options.run.csv, [&](std::ostream& out) { out << csv.str(); });
   if (!options.run.stateOut.empty()) io::saveState(run.lastGood(), options.run.stateOut);
+  endIfInterrupted();
 
   // A relative drift needs an energy to be relative to: a model at rest whose angle springs
   // hold it only to rounding has 1e-28 J, and its "drift" was 25 (a ratio of noise). Below a

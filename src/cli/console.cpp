@@ -1,5 +1,6 @@
 #include "console.h"
 
+#include <atomic>
 #include <csignal>
 #include <cstdio>
 #include <cstring>
@@ -8,15 +9,16 @@
 namespace zsculpt::cli {
 
 namespace {
-volatile std::sig_atomic_t interruptingSignal = 0;
-volatile std::sig_atomic_t interruptions = 0;
+// Lock-free atomics: the handler may run on any thread (OpenMP's, the rasteriser's).
+std::atomic<int> interruptingSignal{0};
+std::atomic<int> interruptions{0};
+static_assert(std::atomic<int>::is_always_lock_free);
 // The third signal ends the process where it stands (a run stuck in a write to a pipe that
 // nobody reads). Not the second: `timeout` sends its signal twice, to the process and to
 // its group.
 extern "C" void onInterrupt(int signal) {
-  interruptingSignal = signal;
-  interruptions = interruptions + 1;
-  if (interruptions >= 3) {
+  interruptingSignal.store(signal);
+  if (interruptions.fetch_add(1) + 1 >= 3) {
     std::signal(signal, SIG_DFL);
     std::raise(signal);
   }
@@ -47,13 +49,14 @@ bool progressLineCleared() {
   return lineCleared;
 }
 
-InterruptedError::InterruptedError(int signal)
+InterruptedError::InterruptedError(int signal, bool outputsWritten)
     : Error(std::string("interrupted by ") +
             (signal == SIGINT    ? "SIGINT"
              : signal == SIGTERM ? "SIGTERM"
              : signal == SIGHUP  ? "SIGHUP"
                                  : "a signal") +
-            ": the run stopped and left no output"),
+            (outputsWritten ? " as the run's outputs were written: they are whole"
+                            : ": the run stopped and left no output")),
       signal_(signal) {}
 
 Interruptions::Interruptions() {
@@ -71,13 +74,20 @@ Interruptions::Interruptions() {
 }
 
 Interruptions::~Interruptions() {
-  if (--interruptionsAlive > 0) return;
+  // After a signal the handlers stay until the command line has said so and raised it
+  // (`timeout`'s second signal would otherwise end the process before the message).
+  if (--interruptionsAlive > 0 || interruptingSignal.load() != 0) return;
   for (size_t k = 0; k < std::size(kInterruptions); ++k)
     ::sigaction(kInterruptions[k], &previousActions[k], nullptr);
 }
 
 void throwIfInterrupted() {
-  if (interruptingSignal != 0) throw InterruptedError(interruptingSignal);
+  if (const int signal = interruptingSignal.load(); signal != 0) throw InterruptedError(signal);
+}
+
+void endIfInterrupted() {
+  if (const int signal = interruptingSignal.load(); signal != 0)
+    throw InterruptedError(signal, true);
 }
 
 }  // namespace zsculpt::cli

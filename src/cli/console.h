@@ -21,7 +21,7 @@ bool progressLineCleared();
 /// what it had written (the command line ends the process by that signal after saying so).
 class InterruptedError : public Error {
  public:
-  explicit InterruptedError(int signal);
+  explicit InterruptedError(int signal, bool outputsWritten = false);
   [[nodiscard]] int signal() const { return signal_; }
 
  private:
@@ -43,5 +43,8 @@ class Interruptions {
 
 /// Throws InterruptedError if a signal came while Interruptions lived.
 void throwIfInterrupted();
+/// The same once the run's outputs are written (a signal during the writes let them finish),
+/// so that the process still ends by the signal, saying that the outputs are whole.
+void endIfInterrupted();
 
 }  // namespace zsculpt::cli

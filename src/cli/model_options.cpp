@@ -100,37 +100,6 @@ LoadedModel ModelOptions::load() const {
     if (!isScene) throw;
     throw InvalidInputError(source + ": /mesh: " + e.what());
   }
-  // A flag for a property the scene gives every vertex on its own changes nothing (scenes the
-  // window saves carry a whole array for every painted property): said, not silent.
-  const std::pair<const std::optional<double>*, Property> flagged[] = {
-      {&mass, Property::Mass},
-      {&damping, Property::Damping},
-      {&stiffness, Property::Stiffness},
-      {&angularStiffness, Property::AngularStiffness},
-      {&rigidity, Property::Rigidity}};
-  for (const auto& [value, property] : flagged) {
-    if (!value->has_value()) continue;
-    std::vector<bool> covered(static_cast<size_t>(mesh.numVertices()), false);
-    size_t count = 0;
-    for (const io::PropertyOverride& o : scene.overrides) {
-      if (o.property != property) continue;
-      const size_t elements = o.allElements ? o.values.size() : o.indices.size();
-      for (size_t k = 0; k < elements; ++k) {
-        const Index v = o.allElements ? static_cast<Index>(k) : o.indices[k];
-        if (v >= 0 && v < mesh.numVertices() && !covered[static_cast<size_t>(v)]) {
-          covered[static_cast<size_t>(v)] = true;
-          ++count;
-        }
-      }
-    }
-    if (count > 0 && count == covered.size()) {
-      const std::string name(propertyName(property));
-      std::string flag = "--" + name;
-      std::replace(flag.begin(), flag.end(), '_', '-');
-      warn(flag + " " + jsonNumber(**value) + ": " + source + " gives every vertex its own " +
-           name + " (/vertex_properties/" + name + "), so the flag changes nothing");
-    }
-  }
   // A scale that makes some rest length overflow is the scale's fault: said of it, not of
   // "edge 0" (which the model's own check would name).
   for (Index e = 0; e < mesh.numEdges() && u.restLengthScale != 1.0; ++e) {
@@ -166,6 +135,38 @@ LoadedModel ModelOptions::load() const {
     modelInWork() = std::move(context);
   }
   loaded.model = io::buildModel(scene, std::move(mesh));
+  // A flag for a property the scene gives every vertex on its own changes nothing (scenes the
+  // window saves carry a whole array for every painted property): said, not silent, once the
+  // scene has been found valid (a refused run says one line).
+  const std::pair<const std::optional<double>*, Property> flagged[] = {
+      {&mass, Property::Mass},
+      {&damping, Property::Damping},
+      {&stiffness, Property::Stiffness},
+      {&angularStiffness, Property::AngularStiffness},
+      {&rigidity, Property::Rigidity}};
+  for (const auto& [value, property] : flagged) {
+    if (!value->has_value()) continue;
+    std::vector<bool> covered(static_cast<size_t>(loaded.model.mesh.numVertices()), false);
+    size_t count = 0;
+    for (const io::PropertyOverride& o : scene.overrides) {
+      if (o.property != property) continue;
+      const size_t elements = o.allElements ? o.values.size() : o.indices.size();
+      for (size_t k = 0; k < elements; ++k) {
+        const Index v = o.allElements ? static_cast<Index>(k) : o.indices[k];
+        if (v >= 0 && v < loaded.model.mesh.numVertices() && !covered[static_cast<size_t>(v)]) {
+          covered[static_cast<size_t>(v)] = true;
+          ++count;
+        }
+      }
+    }
+    if (count > 0 && count == covered.size()) {
+      const std::string name(propertyName(property));
+      std::string flag = "--" + name;
+      std::replace(flag.begin(), flag.end(), '_', '-');
+      warn(flag + " " + jsonNumber(**value) + ": " + source + " gives every vertex its own " +
+           name + " (/vertex_properties/" + name + "), so the flag changes nothing");
+    }
+  }
   if (isScene) loaded.scene = std::move(scene);
   return loaded;
 }

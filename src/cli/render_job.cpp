@@ -7,6 +7,7 @@
 #include <cmath>
 #include <cstdio>
 #include <filesystem>
+#include <fstream>
 #include <iostream>
 #include <memory>
 #include <sstream>
@@ -72,6 +73,15 @@ void checkOwnFilesSpare(const RenderJobOptions& o, const LoadedModel& loaded, si
   }
 }
 
+// A file's bytes (a staged frame, to be written through a link or to a device).
+std::string readFileBytes(const std::string& path) {
+  std::ifstream in(path, std::ios::binary);
+  std::ostringstream bytes;
+  bytes << in.rdbuf();
+  if (!in) throw IOError(path + ": cannot read it back");
+  return bytes.str();
+}
+
 constexpr long kDefaultFrames = 30;
 constexpr long kMaxFrames = 100000;
 constexpr long kMaxRenderSteps = 1000000000;
@@ -92,24 +102,23 @@ std::vector<long> frameSteps(const RenderJobOptions& o, RunOptions::Resolved& ru
   // A render keeps every step's energy and momenta for its plot and diagnostics (80 bytes a
   // step and a line of text): 1e18 s asked for failed as "vector::reserve", and the frame
   // arithmetic below overflowed (a QA pass).
-  auto checkLength = [&](long asked) {
+  auto checkLength = [&](long asked, const std::string& source) {
     if (asked > kMaxRenderSteps)
-      throw InvalidInputError(std::string(run.seconds ? "--time"
-                                          : o.every   ? "--every"
-                                                      : "--steps") +
-                              ": " + std::to_string(asked) +
-                              " steps: a render keeps every step's energy and momentum for " +
-                              "its plot, so it runs at most " + std::to_string(kMaxRenderSteps) +
-                              " steps");
+      throw InvalidInputError(source + ": " + std::to_string(asked) +
+                              " steps: a render keeps every step's energy and momentum for its "
+                              "plot, so it runs at most " +
+                              std::to_string(kMaxRenderSteps) + " steps");
   };
-  checkLength(steps);
-  if (o.every) checkLength(*o.every);
+  const std::string length = run.seconds ? "the run's time (--time or the scene's)"
+                                         : "the run's steps (--steps or the scene's)";
+  checkLength(steps, length);
+  if (o.every) checkLength(*o.every, "--every");
   std::vector<long> at;
   if (o.every) {
     const long k = *o.every;
     // --frames N --every K with no run length: the run is just long enough for N frames.
     if (o.frames && !explicitLength) steps = (*o.frames - 1) * k;
-    checkLength(steps);
+    checkLength(steps, explicitLength ? length : "--frames with --every");
     for (long s = 0; s <= steps; s += k) {
       if (o.frames && static_cast<long>(at.size()) >= *o.frames) break;
       at.push_back(s);
@@ -140,7 +149,7 @@ std::vector<long> frameSteps(const RenderJobOptions& o, RunOptions::Resolved& ru
           << "ends at " << *run.seconds << " s";
       warn(msg.str());
     }
-    checkLength(fitted);
+    checkLength(fitted, length);
     steps = fitted;
     run.settings.period = period;
   }
@@ -229,6 +238,7 @@ RenderJobResult runRenderJob(const RenderJobOptions& o) {
   renderer.checkSize(result.width, result.height, "--size");
 
   const LoadedModel loaded = o.model.load();
+  throwIfInterrupted();  // a big model loads for a while: a Ctrl+C then ends it here
   checkOutputsSpareInputs({{"--csv", &o.run.csv}, {"--state-out", &o.run.stateOut}}, loaded,
                           o.run.stateIn);
   RunOptions::Resolved resolved = o.run.resolve(loaded);
@@ -383,7 +393,9 @@ RenderJobResult runRenderJob(const RenderJobOptions& o) {
   // The frames are written to a folder of their own in --out and moved to their names when
   // the run ends (or diverges): a run refused or interrupted part way leaves the frames of
   // an earlier run in --out as they were (it overwrote some, then took them away).
-  const fs::path staging = fs::path(o.out) / (".zsculpt-frames-" + std::to_string(::getpid()));
+  // Named by the process and the clock, and made new: a folder left by a killed run whose
+  // process number came round again is not taken over.
+  fs::path staging;
   std::vector<std::string> staged;
   auto writeFrame = [&]() {
     char name[32];
@@ -392,9 +404,16 @@ RenderJobResult runRenderJob(const RenderJobOptions& o) {
     // the run), so that its error names it rather than a frame in it.
     if (result.frames.empty()) {
       io::ensureWritableDirectory(o.out);
-      std::error_code ec;
-      fs::create_directory(staging, ec);
-      if (ec) throw IOError(staging.string() + ": cannot make it: " + ec.message());
+      const auto ticks = std::chrono::steady_clock::now().time_since_epoch().count();
+      for (int attempt = 0;; ++attempt) {
+        staging = fs::path(o.out) / (".zsculpt-frames-" + std::to_string(::getpid()) + "-" +
+                                     std::to_string(ticks + attempt));
+        std::error_code ec;
+        if (fs::create_directory(staging, ec)) break;
+        if (ec || attempt == 100)
+          throw IOError(staging.string() +
+                        ": cannot make it: " + (ec ? ec.message() : std::string("it is there")));
+      }
     }
     fillFrame();
     if (backAway) render::keepSceneInView(frame, aspect, 1.25, viewPoints, viewRefined);
@@ -410,6 +429,7 @@ RenderJobResult runRenderJob(const RenderJobOptions& o) {
   record(0, sim.diagnostics());
   GuardedRun run(sim, edits);
   try {
+    throwIfInterrupted();
     if (frameAt[next] == 0) {
       writeFrame();
       ++next;
@@ -430,22 +450,73 @@ RenderJobResult runRenderJob(const RenderJobOptions& o) {
                       static_cast<long>(result.frames.size()), static_cast<long>(frameAt.size()));
     }
     throwIfInterrupted();
-    // The run's result (its frames up to the last good state, when it diverged): the frames
-    // to their names, over an earlier run's.
+    progress.finish();
+    result.stepsTaken = result.diverged ? result.divergedAt - 1 : steps;
+    result.editsApplied = edits.applied;
+    result.matrixDifference = edits.maxDifference;
+    sayNothingActs();
+
+    // The frames go to their names last, over an earlier run's (its frames up to the last good
+    // state when it diverged): every name checked before any output is written, so that a
+    // failure leaves no mix. A link or a device of a frame's name is written through (as every
+    // save is), not replaced.
+    std::vector<bool> through(staged.size(), false);
     for (size_t f = 0; f < staged.size(); ++f) {
       std::error_code ec;
-      fs::rename(staged[f], result.frames[f], ec);
-      if (ec) throw IOError(result.frames[f] + ": cannot write it: " + ec.message());
+      const fs::file_status status = fs::symlink_status(result.frames[f], ec);
+      if (fs::is_directory(status) ||
+          (fs::is_symlink(status) && fs::is_directory(fs::status(result.frames[f], ec))))
+        throw IOError(result.frames[f] + ": is a directory");
+      through[f] = fs::exists(status) && !fs::is_regular_file(status);
     }
-    std::error_code ec;
-    fs::remove(staging, ec);
+    result.diagnostics =
+        o.run.csv.empty() ? (fs::path(o.out) / "diagnostics.csv").string() : o.run.csv;
+    io::writeFileAtomically(result.diagnostics, [&](std::ostream& out) { out << csv.str(); });
+    result.plot = (fs::path(o.out) / "energy_momentum.png").string();
+    render::PlotOptions plotOptions;
+    plotOptions.title = fs::path(loaded.source).filename().string() + ": energy and momentum";
+    // When the loads act, shaded: the energy and the momenta change there (a review).
+    std::vector<render::PlotPanel> panels = render::energyMomentumPanels(series);
+    const double runStart = series.time.empty() ? 0.0 : series.time.front();
+    const double runEnd = series.time.empty() ? 0.0 : series.time.back();
+    std::vector<render::Band> loads;
+    for (const auto* list : {&sim.forces(), &sim.torques()})
+      for (const TimedLoad& load : *list) {
+        const double from = std::max(load.start, runStart), to = std::min(load.end, runEnd);
+        if (to > from) loads.push_back({from, to});
+      }
+    for (render::PlotPanel& panel : panels) {
+      panel.bands = loads;
+      panel.bandLabel = "load";
+    }
+    render::savePlot(result.plot, panels, plotOptions);
+    if (!o.run.stateOut.empty()) {
+      io::saveState(run.lastGood(), o.run.stateOut);
+      result.stateOut = o.run.stateOut;
+    }
+    // Last, the frames to their names over an earlier run's (checked before the other
+    // outputs were written).
+    for (size_t f = 0; f < staged.size(); ++f) {
+      std::error_code ec;
+      if (through[f]) {
+        const std::string bytes = readFileBytes(staged[f]);
+        io::writeFileAtomically(result.frames[f], [&](std::ostream& out) { out << bytes; });
+      } else {
+        fs::rename(staged[f], result.frames[f], ec);
+        if (ec) throw IOError(result.frames[f] + ": cannot write it: " + ec.message());
+      }
+    }
+    {
+      std::error_code ec;
+      fs::remove_all(staging, ec);
+    }
   } catch (...) {
     // Refused, failed or interrupted part way (a scene's edit out of range where it falls, a
     // full disk, memory, SIGTERM): the run leaves no output behind, so the frames it wrote
     // go, and the folders it made if they are empty. A divergence is not thrown.
     progress.finish();
     std::error_code ec;
-    fs::remove_all(staging, ec);
+    if (!staging.empty()) fs::remove_all(staging, ec);
     if (!madeFolder.empty())
       for (fs::path p = fs::absolute(o.out, ec).lexically_normal();; p = p.parent_path()) {
         if (!p.has_filename()) continue;
@@ -453,37 +524,7 @@ RenderJobResult runRenderJob(const RenderJobOptions& o) {
       }
     throw;
   }
-  progress.finish();
-  result.stepsTaken = result.diverged ? result.divergedAt - 1 : steps;
-  result.editsApplied = edits.applied;
-  result.matrixDifference = edits.maxDifference;
-  sayNothingActs();
-
-  result.diagnostics =
-      o.run.csv.empty() ? (fs::path(o.out) / "diagnostics.csv").string() : o.run.csv;
-  io::writeFileAtomically(result.diagnostics, [&](std::ostream& out) { out << csv.str(); });
-  result.plot = (fs::path(o.out) / "energy_momentum.png").string();
-  render::PlotOptions plotOptions;
-  plotOptions.title = fs::path(loaded.source).filename().string() + ": energy and momentum";
-  // When the loads act, shaded: the energy and the momenta change there (a review).
-  std::vector<render::PlotPanel> panels = render::energyMomentumPanels(series);
-  const double runStart = series.time.empty() ? 0.0 : series.time.front();
-  const double runEnd = series.time.empty() ? 0.0 : series.time.back();
-  std::vector<render::Band> loads;
-  for (const auto* list : {&sim.forces(), &sim.torques()})
-    for (const TimedLoad& load : *list) {
-      const double from = std::max(load.start, runStart), to = std::min(load.end, runEnd);
-      if (to > from) loads.push_back({from, to});
-    }
-  for (render::PlotPanel& panel : panels) {
-    panel.bands = loads;
-    panel.bandLabel = "load";
-  }
-  render::savePlot(result.plot, panels, plotOptions);
-  if (!o.run.stateOut.empty()) {
-    io::saveState(run.lastGood(), o.run.stateOut);
-    result.stateOut = o.run.stateOut;
-  }
+  endIfInterrupted();
   result.wallSeconds =
       std::chrono::duration<double>(std::chrono::steady_clock::now() - wallStart).count();
   return result;
