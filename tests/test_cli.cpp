@@ -739,6 +739,21 @@ TEST_F(Cli, TheDocumentedSceneRunsCleanlyAndAnEditThatChangesNothingSaysSo) {
   EXPECT_NE(far.err.find(" changed nothing (its brush reached no vertex"), std::string::npos)
       << far.err;
   EXPECT_EQ(nlohmann::json::parse(far.out)["edits_applied"].get<int>(), 0);
+  // Edits due at or after the run's end are said to be left (a QA pass: dropped silently).
+  std::ofstream(path("late.json")) << R"({"mesh": "builtin:torus", "edits": [{"time": 0.2,
+      "action": "relax"}, {"time": 1000, "action": "relax"}, {"time": 2000, "action": "relax"}],
+      "simulation": {"time": 0.5, "perturb": 0.1}})";
+  for (const std::string command : {"simulate", "render"}) {
+    const Result late = run(command + " " + path("late.json") +
+                            (command == "render" ? " --frames 2 --size 64x64 --out " + path("lo")
+                                                 : std::string(" --json")));
+    ASSERT_EQ(late.status, 0) << late.err;
+    EXPECT_NE(late.err.find("late.json: /edits/1 at t = 1000 s and 1 more after it come at or "
+                            "after the run's end (t = 0.5"),
+              std::string::npos)
+        << command << ": " << late.err;
+    EXPECT_EQ(late.err.find("/edits/0"), std::string::npos) << late.err;
+  }
 }
 
 TEST_F(Cli, AScenesErrorsNameTheJsonPath) {

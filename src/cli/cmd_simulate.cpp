@@ -97,7 +97,9 @@ int runSimulate(const SimulateOptions& options) {
   }
   const double wall =
       std::chrono::duration<double>(std::chrono::steady_clock::now() - wallStart).count();
-  throwIfInterrupted();  // a signal in the loading or the last cycle: nothing written yet
+  throwIfInterrupted();
+  if (!diverged)
+    edits.sayWhatIsLeft(sim);  // a signal in the loading or the last cycle: nothing written yet
   if (wantCsv)
     io::writeFileAtomically(options.run.csv, [&](std::ostream& out) { out << csv.str(); });
   if (!options.run.stateOut.empty()) io::saveState(run.lastGood(), options.run.stateOut);

@@ -74,4 +74,18 @@ void TimedEdits::beforeStep(Simulation& sim) {
   }
 }
 
+void TimedEdits::sayWhatIsLeft(const Simulation& sim) const {
+  // Said, not skipped silently: an edit at t = 1000 s in a run of 3 steps was dropped and the
+  // run exited 0, edits_applied 0 (a QA pass).
+  const std::span<const editing::TimedEdit> left = schedule.pending();
+  if (left.empty()) return;
+  std::ostringstream text;
+  text << source << ": /edits/" << left.front().source << " at t = " << left.front().time << " s";
+  if (left.size() > 1) text << " and " << left.size() - 1 << " more after it";
+  text << (left.size() > 1 ? " come" : " comes") << " at or after the run's end (t = " << sim.time()
+       << " s): not applied (--time or --steps longer would reach "
+       << (left.size() > 1 ? "them" : "it") << ")";
+  warn(text.str());
+}
+
 }  // namespace zsculpt::cli

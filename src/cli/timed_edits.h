@@ -27,6 +27,9 @@ struct TimedEdits {
   /// Applies the edits due at the simulation's current time. Throws InvalidInputError
   /// "<scene>: /edits/<k>: <reason>" for an edit the model refuses.
   void beforeStep(Simulation& sim);
+  /// After a run that ended at the simulation's current time: a warning naming the edits
+  /// still pending (due at or after the end), which a run that stopped short never applies.
+  void sayWhatIsLeft(const Simulation& sim) const;
   double takeEnergyChange() {
     const double e = energyChange;
     energyChange = 0.0;
