@@ -10,6 +10,7 @@
 
 #include "console.h"
 #include "zsculpt/core/errors.h"
+#include "zsculpt/io/atomic_file.h"
 #include "zsculpt/io/state_io.h"
 #include "zsculpt/physics/matrices.h"
 
@@ -249,18 +250,11 @@ Index parseVertexIndex(const std::string& text, const std::string& what) {
 void checkDistinctOutputs(
     std::initializer_list<std::pair<const char*, const std::string*>> outputs) {
   namespace fs = std::filesystem;
-  // The file a save to `path` writes: a link to a file not yet made names that file too
-  // (weakly_canonical stops at a dangling link, and `--state-out link` to `--csv`'s file got
-  // through: a QA pass).
+  // Compared where the saves write: a link to a file not yet made names that file too
+  // (`--state-out link` to `--csv`'s file got through weakly_canonical: a QA pass).
   auto savedTo = [](const std::string& path) {
     std::error_code ec;
-    fs::path p = fs::absolute(path, ec);
-    for (int hops = 0; hops < 40 && fs::is_symlink(p, ec); ++hops) {
-      const fs::path target = fs::read_symlink(p, ec);
-      if (ec) break;
-      p = target.is_absolute() ? target : p.parent_path() / target;
-    }
-    return fs::weakly_canonical(p, ec);
+    return fs::weakly_canonical(fs::absolute(io::saveTarget(path).path, ec), ec);
   };
   std::vector<std::pair<const char*, fs::path>> seen;
   for (const auto& [flag, path] : outputs) {

@@ -461,15 +461,11 @@ RenderJobResult runRenderJob(const RenderJobOptions& o) {
     // state when it diverged): every name checked before any output is written, so that a
     // failure leaves no mix. A link or a device of a frame's name is written through (as every
     // save is), not replaced.
-    std::vector<bool> through(staged.size(), false);
-    for (size_t f = 0; f < staged.size(); ++f) {
-      std::error_code ec;
-      const fs::file_status status = fs::symlink_status(result.frames[f], ec);
-      if (fs::is_directory(status) ||
-          (fs::is_symlink(status) && fs::is_directory(fs::status(result.frames[f], ec))))
-        throw IOError(result.frames[f] + ": is a directory");
-      through[f] = fs::exists(status) && !fs::is_regular_file(status);
-    }
+    // (saveTarget refuses a folder of that name, follows links, and says a device is written
+    // in place.)
+    std::vector<io::SaveTarget> targets;
+    targets.reserve(staged.size());
+    for (const std::string& name : result.frames) targets.push_back(io::saveTarget(name));
     result.diagnostics =
         o.run.csv.empty() ? (fs::path(o.out) / "diagnostics.csv").string() : o.run.csv;
     io::writeFileAtomically(result.diagnostics, [&](std::ostream& out) { out << csv.str(); });
@@ -499,11 +495,11 @@ RenderJobResult runRenderJob(const RenderJobOptions& o) {
     // outputs were written).
     for (size_t f = 0; f < staged.size(); ++f) {
       std::error_code ec;
-      if (through[f]) {
+      if (targets[f].inPlace) {
         const std::string bytes = readFileBytes(staged[f]);
         io::writeFileAtomically(result.frames[f], [&](std::ostream& out) { out << bytes; });
       } else {
-        fs::rename(staged[f], result.frames[f], ec);
+        fs::rename(staged[f], targets[f].path, ec);
         if (ec) throw IOError(result.frames[f] + ": cannot write it: " + ec.message());
       }
     }

@@ -150,11 +150,6 @@ void commit(const std::string& path, const std::string& temporary) {
 /// is followed, so that the link stays and the file it names is replaced; anything else that
 /// exists (a device such as /dev/stdout or /dev/null, a pipe) is written in place: renaming
 /// over it would put a regular file where the device was.
-struct Target {
-  std::string path;
-  bool inPlace = false;
-};
-
 /// The descriptor a path names by number (/dev/stdout, /dev/stderr, /dev/fd/N,
 /// /proc/self/fd/N), or -1. Such a path is written through that descriptor as it stands:
 /// reopened (or followed to the file it is), `>> log` would be overwritten from its start,
@@ -182,7 +177,7 @@ int namedDescriptor(const std::string& path) {
   return -1;
 }
 
-Target resolveTarget(const std::string& path) {
+SaveTarget resolveTarget(const std::string& path) {
   checkTarget(path);
   if (namedDescriptor(path) >= 0) return {path, true};
   std::error_code ec;
@@ -240,7 +235,7 @@ void writeInPlace(const std::string& path, const std::function<void(std::ostream
 
 void writeFileAtomically(const std::string& requested,
                          const std::function<void(std::ostream&)>& write) {
-  const Target target = resolveTarget(requested);
+  const SaveTarget target = resolveTarget(requested);
   if (target.inPlace) {
     writeInPlace(target.path, write);
     return;
@@ -269,7 +264,7 @@ void writeFileAtomically(const std::string& requested,
 
 void writeFileAtomicallyVia(const std::string& requested,
                             const std::function<void(const std::string&)>& writeTo) {
-  const Target target = resolveTarget(requested);
+  const SaveTarget target = resolveTarget(requested);
   // A library writes to a name of its own choosing; a device or pipe has no such name.
   if (target.inPlace) fail(requested, "not a file: a device or pipe cannot take this output");
   const std::string& path = target.path;
@@ -287,7 +282,7 @@ void writeFileAtomicallyVia(const std::string& requested,
 }
 
 void checkOutputFile(const std::string& path) {
-  const Target target = resolveTarget(path);
+  const SaveTarget target = resolveTarget(path);
   if (target.inPlace) {
     const int fd = namedDescriptor(path);
     const int flags = fd >= 0 ? ::fcntl(fd, F_GETFL) : 0;
@@ -363,6 +358,10 @@ void ensureWritableDirectory(const std::string& dir) {
   }
   if (!fs::is_directory(p, ec)) fail(name, "not a folder");
   if (::access(name.c_str(), W_OK | X_OK) != 0) fail(name, "not writable: " + errnoText(errno));
+}
+
+SaveTarget saveTarget(const std::string& path) {
+  return resolveTarget(path);
 }
 
 }  // namespace zsculpt::io

@@ -9,6 +9,16 @@
 
 namespace zsculpt::io {
 
+/// Where a save to `path` writes: the file at the end of its chain of symbolic links (one
+/// still to be made for a dangling link), or `path` itself with inPlace for an existing device
+/// or pipe (or a descriptor named by number). Throws IOError "<path>: <reason>" for a target
+/// no save could take (a loop of links, a name too long).
+struct SaveTarget {
+  std::string path;
+  bool inPlace = false;
+};
+SaveTarget saveTarget(const std::string& path);
+
 /// Calls `write` with a stream to a temporary file next to `path`, then fsyncs and renames
 /// it to `path`. On any failure the temporary file is removed, `path` is untouched, and
 /// IOError "<path>: <reason>" is thrown. A symbolic link is followed (the link stays, the
