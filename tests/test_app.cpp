@@ -1134,6 +1134,20 @@ TEST(Recording, MalformedRecordingsAreRefusedWithTheLine) {
   refuse("{\"cycle\": 0, \"type\": \"play\"}\n{\"end_cycle\": 18446744073709551615}\n",
          "line 2: end_cycle 18446744073709551615 is more cycles than a session records");
   refuse("{\"cycle\": 1099511627777, \"type\": \"play\"}\n", "line 1: cycle 1099511627777");
+  // The footer is strict and last: a misspelt state_hash left the replay uncompared and
+  // exiting 0, and a second footer silently replaced the first (a QA pass).
+  refuse("{\"cycle\": 0, \"type\": \"play\"}\n{\"end_cycle\": 3, \"stat_hash\": \"00\"}\n",
+         "line 2: stat_hash: unknown field of the footer");
+  refuse("{\"cycle\": 0, \"type\": \"play\"}\n{\"end_cycle\": 3, \"time\": \"soon\"}\n",
+         "line 2: time: expected a number");
+  refuse("{\"cycle\": 0, \"type\": \"play\"}\n{\"end_cycle\": 3}\n{\"end_cycle\": 5}\n",
+         "line 3: comes after the footer (end_cycle, line 2)");
+  refuse("{\"end_cycle\": 3}\n{\"cycle\": 1, \"type\": \"play\"}\n",
+         "line 2: comes after the footer");
+  EXPECT_EQ(readRecording(write("{\"cycle\": 0, \"type\": \"play\"}\n{\"end_cycle\": 3, \"time\": "
+                                "0.5, \"state_hash\": \"00000000000000ff\"}\n\n"))
+                .stateHash,
+            std::optional<std::uint64_t>(255u));
   EXPECT_THROW(readRecording((dir / "missing.jsonl").string()), IOError);
   // A script without a header cannot be replayed on its own.
   const Recording script = readRecording(write("{\"cycle\": 0, \"type\": \"play\"}\n"));

@@ -6,6 +6,7 @@
 #include <sys/wait.h>
 
 #include <Eigen/Core>
+#include <algorithm>
 #include <cmath>
 #include <csignal>
 #include <cstdlib>
@@ -756,6 +757,34 @@ TEST_F(Cli, TheDocumentedSceneRunsCleanlyAndAnEditThatChangesNothingSaysSo) {
   }
 }
 
+TEST_F(Cli, ASceneEditThatStiffensTheModelSplitsTheStepsAndTheRunGoesOn) {
+  // Stiffness x100 at t = 0.5 s on a shaken Torus-I run at 0.5 T_max: T_max falls tenfold
+  // under the run's step. Symplectic Euler and the paper's scheme stopped at step 4 ("the
+  // energy ran away"); now each cycle is taken in 16 steps from the edit on, said once, and
+  // the run ends with its steps, time and frames as asked.
+  std::ofstream(path("stiffen.json")) << R"({"mesh": "builtin:torus", "edits": [{"time": 0.5,
+      "property": "stiffness", "global": true, "value": 100, "mode": "multiply"}],
+      "simulation": {"time": 3.0, "perturb": 0.05, "seed": 7}})";
+  for (const std::string scheme : {"symplectic-euler", "paper"}) {
+    const Result r = run("simulate " + path("stiffen.json") + " --json --scheme " + scheme);
+    ASSERT_EQ(r.status, 0) << scheme << ": " << r.err;
+    const auto j = nlohmann::json::parse(r.out);
+    EXPECT_FALSE(j.at("diverged").get<bool>());
+    EXPECT_EQ(j.at("substeps_max").get<int>(), 16);
+    EXPECT_NEAR(j.at("time_end").get<double>(),
+                j.at("steps").get<long>() * j.at("dt").get<double>(), 1e-9);
+    EXPECT_NE(r.err.find("stiffen.json: an edit at t = "), std::string::npos) << r.err;
+    EXPECT_NE(r.err.find(" lowered T_max to "), std::string::npos) << r.err;
+    EXPECT_EQ(std::count(r.err.begin(), r.err.end(), '\n'), 1) << r.err;
+  }
+  const Result frames =
+      run("render " + path("stiffen.json") +
+          " --scheme symplectic-euler --frames 3 --size 64x64 --out " + path("frames") + " --json");
+  ASSERT_EQ(frames.status, 0) << frames.err;
+  EXPECT_FALSE(nlohmann::json::parse(frames.out).at("diverged").get<bool>());
+  EXPECT_TRUE(fs::exists(path("frames") + "/frame_0002.png"));
+}
+
 TEST_F(Cli, AScenesErrorsNameTheJsonPath) {
   std::ofstream(path("scene.json")) << R"({"mesh": "builtin:grid", "properties": {"mass": 0}})";
   const Result r = run("info " + path("scene.json"));
@@ -1236,6 +1265,24 @@ TEST_F(Cli, ARefusedRunMakesNoFolderAndNamesTheFlagAtFault) {
   // Without a footer there is no hash to check: said, not left for a reader to assume.
   EXPECT_NE(replayed.out.find("not compared (the recording has no footer"), std::string::npos)
       << replayed.out;
+  // A session that diverged ends its replay with exit 3 (cli.md), its outputs whole: it
+  // exited 0 (a QA pass). Symplectic Euler at 1 s on this grid (T_max 0.387 s) runs away.
+  {
+    std::ofstream recording(path("unstable.jsonl"));
+    recording
+        << R"({"zsculpt_recording":1,"source":"builtin:grid","scheme":"symplectic-euler","period":1.0,"mesh_hash":"9d83a79362d3299c","scene":{"version":1,"mesh":"builtin:grid","properties":{"mass":0.5,"damping":0.0,"stiffness":5.0,"angular_stiffness":0.0,"rigidity":0.0,"rest_length_scale":1.0,"gravity":[0.0,0.0,0.0]},"simulation":{"scheme":"symplectic-euler"}}})"
+        << "\n{\"cycle\":0,\"type\":\"force\",\"vertex\":5,\"value\":[0,0,1],\"duration\":1}\n"
+        << "{\"cycle\":0,\"type\":\"play\"}\n{\"cycle\":40,\"type\":\"pause\"}\n";
+  }
+  const Result diverged =
+      run("replay " + path("unstable.jsonl") + " --no-frames --json --out " + path("diverged"));
+  EXPECT_EQ(diverged.status, 3) << diverged.err;
+  EXPECT_GE(nlohmann::json::parse(diverged.out).at("divergences").get<int>(), 1);
+  EXPECT_NE(
+      diverged.err.find("zsculpt: error: " + path("unstable.jsonl") + ": the simulation diverged "),
+      std::string::npos)
+      << diverged.err;
+  EXPECT_TRUE(fs::exists(path("diverged/final_state.csv")));
   // A load on a vertex the model lacks is said of its flag.
   expectOneLineError(run("simulate builtin:dodecahedron --steps 2 --force 20:1,0,0"), 2,
                      "--force 20:1,0,0: force at vertex 20: no such vertex (the model has 20)");

@@ -1582,6 +1582,91 @@ TEST(Substeps, AStateSetBetweenCyclesChoosesTheStepsFromItsOwnVelocities) {
   EXPECT_EQ(slow.retakes(), 0);
 }
 
+TEST(Substeps, AnEditThatStiffensTheModelSplitsTheCyclesOfTheSchemesThatNeedIt) {
+  // Torus-I at 0.5 T_max, shaken, its stiffness then multiplied by 100 everywhere (a scene's
+  // global edit: T_max falls tenfold). The cycle keeps its period (a headless run's step
+  // count, time and frames are in cycles); the conditionally stable schemes take it in 16
+  // steps of 0.3125 T_max from the next cycle on, say so once, and do not run away, where
+  // the same cycle in one step does within a few cycles (`zsculpt simulate` of such a scene
+  // stopped at step 4 with symplectic Euler and the paper's scheme). Exact and implicit
+  // Euler, stable at any period, are not split. An edit that softens the model again gives
+  // the single step back; a time step set after the edit (the window's way: it keeps its
+  // share of T_max by lowering the period) is taken as set.
+  const Model model = makeModel(makeBuiltin("builtin:torus"), ModelSpec{.angular = 0.05});
+  const Index n = model.mesh.numVertices();
+  std::vector<Index> all(static_cast<size_t>(n));
+  for (Index v = 0; v < n; ++v) all[static_cast<size_t>(v)] = v;
+  for (const Scheme scheme : {Scheme::Default, Scheme::Paper, Scheme::SymplecticEuler,
+                              Scheme::Exact, Scheme::ImplicitEuler}) {
+    SCOPED_TRACE(std::string(schemeName(scheme)));
+    const bool conditional = scheme != Scheme::Exact && scheme != Scheme::ImplicitEuler;
+    // Without the default's split for strain, so that the steps counted are this rule's.
+    SimulationSettings settings = settingsFor(model, 0.5, scheme);
+    settings.substepStrain = 0.0;
+    Simulation sim(model, settings);
+    const double period = sim.period();
+    State start = State::atRest(model.mesh);
+    randomVelocity(model.properties.mass, 0.05, 7, start.velocity);
+    sim.setState(start);
+    for (int k = 0; k < 5; ++k) sim.step();
+    // 5 % stiffer: the step (0.51 T_max) stays short of the trigger (0.9 of the limit),
+    // and the run keeps one step a cycle.
+    sim.mutableProperties().stiffness *= 1.05;
+    sim.propertiesChanged(all);
+    sim.step();
+    ASSERT_EQ(sim.substeps(), 1);
+    ASSERT_TRUE(sim.takeWarnings().empty());
+    sim.mutableProperties().stiffness *= 100.0 / 1.05;
+    sim.propertiesChanged(all);
+    const State edited = sim.state();
+    const double energyAfterEdit = sim.diagnostics().total();
+    const double timeAtEdit = sim.time();
+    double highest = energyAfterEdit;
+    int lowered = 0;
+    for (int k = 0; k < 200; ++k) {
+      ASSERT_NO_THROW(sim.step()) << "cycle " << k;
+      ASSERT_EQ(sim.substeps(), conditional ? 16 : 1) << "cycle " << k;
+      highest = std::max(highest, sim.diagnostics().total());
+      for (const std::string& w : sim.takeWarnings())
+        lowered += w.find("lowered T_max") != std::string::npos;
+    }
+    EXPECT_EQ(lowered, conditional ? 1 : 0);
+    EXPECT_EQ(sim.period(), period);
+    EXPECT_NEAR(sim.time(), timeAtEdit + 200 * period, 1e-9 * sim.time());
+    EXPECT_LT(highest, 1.5 * energyAfterEdit);
+    if (conditional) {
+      // The same cycles unsplit, from the same state.
+      Model stiff = model;
+      stiff.properties.stiffness *= 100.0;
+      Simulation unsplit(stiff, settings);
+      unsplit.setState(edited);
+      double unsplitHighest = energyAfterEdit;
+      try {
+        for (int k = 0; k < 200 && unsplitHighest < 100.0 * energyAfterEdit; ++k) {
+          unsplit.step();
+          unsplitHighest = std::max(unsplitHighest, unsplit.diagnostics().total());
+        }
+      } catch (const DivergenceError&) {
+        unsplitHighest = std::numeric_limits<double>::infinity();
+      }
+      EXPECT_GT(unsplitHighest, 100.0 * energyAfterEdit);
+    }
+    // Softer again: one step a cycle.
+    sim.mutableProperties().stiffness /= 100.0;
+    sim.propertiesChanged(all);
+    sim.step();
+    EXPECT_EQ(sim.substeps(), 1);
+    // Stiffer, then a period set as the window sets it: taken as set, in one step.
+    sim.mutableProperties().stiffness *= 100.0;
+    sim.propertiesChanged(all);
+    sim.setTimeStep(scheme, 0.5 * criticalPeriod(sim.stepper().system()));
+    sim.step();
+    EXPECT_EQ(sim.substeps(), 1);
+    for (const std::string& w : sim.takeWarnings())
+      EXPECT_EQ(w.find("lowered T_max"), std::string::npos) << w;
+  }
+}
+
 // ---- diagnostics (Simulation::diagnostics) ----------------------------------------------------
 
 TEST(Diagnostics, ACycleTakesItsEnergyFromTheStep) {
@@ -1813,10 +1898,12 @@ TEST(DivergenceGuard, AnEditsEnergyIsCountedAsWorkAndCheckpointsTakeTurns) {
   EXPECT_NE(untold.reason().find("the energy ran away"), std::string::npos);
   for (int k = 0; k < 200; ++k) ASSERT_TRUE(cycleOnce().first) << k;
   // Still armed: measured before the step, an edit's credit is its own change, not the
-  // step's. A stiffness 400 times higher at the same period (10 times T_max) blows up, and
-  // the told guard catches it while the energy is finite.
+  // step's. A stiffness 400 times higher at the same period (10 times T_max), the period set
+  // again after the edit (so taken as set, not split: Simulation::chooseStableSubsteps),
+  // blows up, and the told guard catches it while the energy is finite.
   sim.mutableProperties().stiffness *= 400.0;
   sim.allPropertiesChanged();
+  sim.setTimeStep(sim.stepper().scheme(), sim.period());
   told.editChangedEnergy();
   told.measureEdit(sim);
   bool caught = false;

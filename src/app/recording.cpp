@@ -164,10 +164,14 @@ Recording readRecording(const std::string& path) {
   std::string line;
   int number = 0;
   std::uint64_t lastCycle = 0;
+  int footerLine = 0;  // the line of end_cycle, which ends the session: nothing may follow
   while (std::getline(in, line)) {
     ++number;
     if (line.find_first_not_of(" \t\r") == std::string::npos) continue;
     const std::string where = path + ": line " + std::to_string(number);
+    if (footerLine)
+      throw InvalidInputError(where + ": comes after the footer (end_cycle, line " +
+                              std::to_string(footerLine) + "), which ends the session");
     json j;
     try {
       j = json::parse(line);
@@ -185,6 +189,14 @@ Recording readRecording(const std::string& path) {
     } else if (j.contains("ui")) {
       rec.ui.emplace_back(number, std::move(j));
     } else if (j.contains("end_cycle")) {
+      // Strict, as the header is: a misspelt "state_hash" would leave the replay uncompared.
+      for (auto it = j.begin(); it != j.end(); ++it)
+        if (it.key() != "end_cycle" && it.key() != "time" && it.key() != "state_hash")
+          throw InvalidInputError(where + ": " + it.key() +
+                                  ": unknown field of the footer (end_cycle, time, state_hash)");
+      if (j.contains("time") && !j.at("time").is_number())
+        throw InvalidInputError(where + ": time: expected a number of seconds");
+      footerLine = number;
       const json& e = j.at("end_cycle");
       if (!e.is_number_unsigned())
         throw InvalidInputError(where + ": end_cycle: expected a cycle count");

@@ -104,6 +104,15 @@ int runReplay(const ReplayOptions& o) {
               << hex(r.stateHash) << " vs " << hex(*recording.stateHash) << ")\n";
     return 2;
   }
+  if (r.divergences > 0) {
+    // cli.md: exit 3 when the simulation diverged, its outputs still written. The session
+    // rolled back and paused, as the window did; a pipeline must not take it for a clean run.
+    std::cerr << "zsculpt: error: " << o.recording << ": the simulation diverged " << r.divergences
+              << (r.divergences == 1 ? " time" : " times")
+              << " in the session (each rolled back to its last good state, as in the window); "
+              << "the outputs in " << o.out << " are whole\n";
+    return 3;
+  }
   return 0;
 }
 

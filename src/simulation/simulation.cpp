@@ -26,6 +26,7 @@ Simulation::Simulation(Model model, const SimulationSettings& settings)
   settings_.stepper.measureEnergy = true;
   stepper_ = std::make_unique<Stepper>(model_, settings.scheme, settings.period, settings_.stepper);
   cyclePeriod_ = stepper_->period();
+  notePeriodShare();
   const Index n = model_.mesh.numVertices();
   for (Points* p : {&external_, &constraintForce_, &baseForce_, &totalForce_, &loadForce_,
                     &deformation_, &lastGoodDeformation_})
@@ -148,7 +149,8 @@ void Simulation::setTimeStep(Scheme scheme, double period) {
   settings_.scheme = scheme;
   settings_.period = period;
   cyclePeriod_ = stepper_->period();
-  substeps_ = 1;           // chosen again at the next cycle
+  substeps_ = 1;  // chosen again at the next cycle
+  notePeriodShare();
   responseValid_ = false;  // the constraints' response is the step's
   energyAtState_ = false;  // the new stepper has not measured the state's energy
   endRateValid_ = false;
@@ -168,6 +170,7 @@ void Simulation::propertiesChanged(std::span<const Index> vertices) {
   stepper_->propertiesChanged(vertices);
   energyAtState_ = false;
   endRateValid_ = false;
+  stiffnessEdited_ = true;
   const bool wasActive = rigidActive_;
   updateRigidity();
   if (rigidActive_)
@@ -181,6 +184,7 @@ void Simulation::allPropertiesChanged() {
   stepper_->rebuild();
   energyAtState_ = false;
   endRateValid_ = false;
+  stiffnessEdited_ = true;
   const bool wasActive = rigidActive_;
   updateRigidity();
   if (rigidActive_)
@@ -467,14 +471,64 @@ double Simulation::strainRate2() const {
 
 void Simulation::setSubsteps(int n) {
   if (n == substeps_) return;
-  substeps_ = n;
   // The division is exact for powers of two, so n = 1 gives T back bit for bit.
-  stepper_->setPeriod(cyclePeriod_ / n);
+  const double period = cyclePeriod_ / n;
+  if (stepper_->scheme() == Scheme::Default)
+    stepper_->setPeriod(period);
+  else  // the other schemes' matrices are built for one period (kStiffenedStepShare only)
+    stepper_ = std::make_unique<Stepper>(model_, stepper_->scheme(), period, settings_.stepper);
+  substeps_ = n;
   responseValid_ = false;  // the constraints' response is the step's
 }
 
+void Simulation::notePeriodShare() {
+  const double tMax = criticalPeriod(stepper_->system());
+  periodShare_ = std::isfinite(tMax) && tMax > 0.0 ? cyclePeriod_ / tMax : 0.0;
+  stableSubsteps_ = 1;
+  stiffnessEdited_ = false;
+}
+
+void Simulation::chooseStableSubsteps() {
+  if (!stiffnessEdited_) return;
+  stiffnessEdited_ = false;
+  const SystemMatrices& system = stepper_->system();
+  const double limit = gershgorinStablePeriodLimit(stepper_->scheme(), system);
+  if (!std::isfinite(limit)) {  // exact and implicit Euler are stable at any period
+    stableSubsteps_ = 1;
+    return;
+  }
+  const double tMax = criticalPeriod(system);
+  const double floor = std::min(kStiffenedStepShare * tMax, 0.99 * limit);
+  // Split into steps as long as the period's share of T_max when it was set (or the floor),
+  // but only once the step comes near the limit: a relax that stiffens the model by 1 %
+  // must not halve a run's speed.
+  const double longest = std::isfinite(tMax) ? std::max(periodShare_ * tMax, floor) : floor;
+  const double trigger = std::max(longest, kStiffenedTrigger * limit);
+  int needed = 1;
+  while (needed < kMaxSubsteps && cyclePeriod_ / needed > longest * (1.0 + 1e-9)) needed *= 2;
+  const int before = stableSubsteps_;
+  stableSubsteps_ = cyclePeriod_ / before > trigger ? needed : std::min(before, needed);
+  if (stableSubsteps_ <= before) return;
+  const int n = stableSubsteps_;
+  std::ostringstream msg;
+  msg.precision(4);
+  msg << "an edit at t = " << state_.time << " s lowered T_max to " << tMax
+      << " s, so that a step of " << cyclePeriod_ / before << " s (" << cyclePeriod_ / before / tMax
+      << " T_max) is near or past the " << schemeName(stepper_->scheme())
+      << " scheme's stable limit: each cycle of " << cyclePeriod_ << " s is now taken in " << n
+      << " steps of " << cyclePeriod_ / n << " s (" << cyclePeriod_ / n / tMax << " T_max)";
+  if (cyclePeriod_ / n > longest * (1.0 + 1e-9))
+    msg << ", still too long: " << kMaxSubsteps
+        << " steps are the most a cycle takes; lower the time step";
+  warnings_.push_back(msg.str());
+}
+
 void Simulation::chooseSubsteps() {
-  if (!substepping()) return;
+  chooseStableSubsteps();
+  if (!substepping()) {
+    setSubsteps(stableSubsteps_);
+    return;
+  }
   // The last cycle's end measured it, unless something changed the state since.
   const double rate2 = endRateValid_ ? endRate2_ : strainRate2();
   const double strain = std::sqrt(rate2) * cyclePeriod_;  // over a whole cycle
@@ -484,7 +538,7 @@ void Simulation::chooseSubsteps() {
     n = up;
   else if (const int down = stepsFor(strain, 0.5 * limit); down < n)
     n = down;
-  setSubsteps(n);
+  setSubsteps(std::max(n, stableSubsteps_));
 }
 
 Diagnostics Simulation::diagnostics() const {

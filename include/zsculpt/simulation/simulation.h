@@ -72,6 +72,16 @@ enum class RigidFrame {
 
 /// The most steps SimulationSettings::substepStrain splits a cycle into.
 inline constexpr int kMaxSubsteps = 64;
+/// An edit that stiffens the model lowers T_max (equation 5) under a cycle whose period was
+/// set as a share of the old one. Once a step of a conditionally stable scheme (default,
+/// paper, symplectic Euler) passes kStiffenedTrigger of the scheme's Gershgorin limit, each
+/// cycle is taken in 2, 4, ... steps, the fewest that bring every step back within the larger
+/// of the share of T_max the period was set at and kStiffenedStepShare (or 0.99 of the limit,
+/// if lower). The cycle's period, and so a run's step count, time and frames, stays. The
+/// window keeps its share by lowering the period itself (app::Session); a headless run has a
+/// step count and frames fixed in cycles.
+inline constexpr double kStiffenedTrigger = 0.9;
+inline constexpr double kStiffenedStepShare = 0.5;
 /// A cycle whose end velocities ask for more than this many times the steps it took (by
 /// SimulationSettings::substepStrain's rule) is taken again from its start in as many as
 /// they ask for: the motion grew within it by more than its start could tell.
@@ -123,7 +133,8 @@ class Simulation {
   [[nodiscard]] const Stepper& stepper() const { return *stepper_; }
   /// The sampling period T of one cycle (step()).
   [[nodiscard]] double period() const { return cyclePeriod_; }
-  /// Steps per cycle at present (SimulationSettings::substepStrain): 1, 2, 4, ...
+  /// Steps per cycle at present: 1, 2, 4, ... (SimulationSettings::substepStrain, and
+  /// kStiffenedStepShare after an edit that stiffened the model).
   [[nodiscard]] int substeps() const { return substeps_; }
   /// How many times the last cycle was taken again with more steps (kRetakeFactor).
   [[nodiscard]] int retakes() const { return retakes_; }
@@ -246,6 +257,10 @@ class Simulation {
   // The largest (|v_a - v_b| / lambda_ab)^2 over the edges of rest length > 0.
   [[nodiscard]] double strainRate2() const;
   void setSubsteps(int n);
+  // kStiffenedStepShare: periodShare_ from the period just set (a new stepper), and
+  // stableSubsteps_ after edits (stiffnessEdited_), said when it rises.
+  void notePeriodShare();
+  void chooseStableSubsteps();
   // A new constraint support (constraints added, moved or removed) set up.
   void syncSupport();
   // Back to the cycle's start (step()): state, rigid motion, ledger, stepper caches.
@@ -276,6 +291,12 @@ class Simulation {
   std::unique_ptr<Stepper> stepper_;
   double cyclePeriod_ = 0.0;
   int substeps_ = 1;  // the stepper's period is cyclePeriod_ / substeps_
+  // kStiffenedStepShare: the cycle's period over T_max when it was set (0: T_max infinite),
+  // the fewest steps a cycle takes for it since, and whether an edit came since they were
+  // counted.
+  double periodShare_ = 0.0;
+  int stableSubsteps_ = 1;
+  bool stiffnessEdited_ = false;
   int retakes_ = 0;
   // strainRate2() at the end of the last cycle, for the next one's chooseSubsteps (cleared by
   // anything that changes the velocities or the rest lengths between cycles).
