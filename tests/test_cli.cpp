@@ -709,6 +709,18 @@ TEST_F(Cli, OutputsAreCheckedBeforeTheWorkAndLinksAndDevicesSurvive) {
   const Result toStdout = run("simulate builtin:dodecahedron --steps 2 --csv /dev/stdout");
   EXPECT_EQ(toStdout.status, 0) << toStdout.err;
   EXPECT_NE(toStdout.out.find("step,time,kinetic"), std::string::npos);
+  // With --json, standard output is the summary's: a state or CSV there would mix with it
+  // into something no JSON reader takes (a QA pass). Refused before any work.
+  for (const std::string flag : {"--csv", "--state-out"})
+    for (const std::string command : {"simulate", "render"}) {
+      const Result mixed =
+          run(command + " builtin:dodecahedron --steps 2 --json " + flag + " /dev/stdout" +
+              (command == "render" ? " --size 64x64 --out " + path("mixed") : ""));
+      expectOneLineError(
+          mixed, 2, flag + ": /dev/stdout is standard output, where --json writes its summary");
+      EXPECT_EQ(mixed.out, "");
+    }
+  EXPECT_FALSE(fs::exists(path("mixed")));
   EXPECT_EQ(run("simulate builtin:dodecahedron --steps 2 --state-out /dev/null").status, 0);
   EXPECT_TRUE(fs::is_character_file("/dev/null"));
   expectOneLineError(run("simulate builtin:dodecahedron --steps 2 --state-out /dev/full"), 2,

@@ -40,6 +40,8 @@ int runSimulate(const SimulateOptions& options) {
   for (const std::string* path : {&options.run.csv, &options.run.stateOut})
     if (!path->empty()) io::checkOutputFile(*path);
   checkDistinctOutputs({{"--csv", &options.run.csv}, {"--state-out", &options.run.stateOut}});
+  checkOutputsSpareStdout({{"--csv", &options.run.csv}, {"--state-out", &options.run.stateOut}},
+                          options.run.json);
   checkOutputsSpareInputs({{"--csv", &options.run.csv}, {"--state-out", &options.run.stateOut}},
                           loaded, options.run.stateIn);
 

@@ -29,6 +29,7 @@ struct SubdivideOptions {
 int runSubdivide(const SubdivideOptions& options) {
   checkLevelsRange(options.levels);
   io::checkMeshOutput(options.out);  // before the work, not after it
+  checkOutputsSpareStdout({{"--out", &options.out}}, options.json);
   const LoadedModel loaded = options.model.load();
   checkOutputsSpareInputs({{"--out", &options.out}}, loaded);
   SubdivisionOptions sub;

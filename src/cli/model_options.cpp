@@ -1,5 +1,8 @@
 #include "model_options.h"
 
+#include <sys/stat.h>
+#include <unistd.h>
+
 #include <algorithm>
 #include <charconv>
 #include <cmath>
@@ -267,6 +270,21 @@ void checkDistinctOutputs(
         throw InvalidInputError(std::string(flag) + ": " + *path + " is also " + other +
                                 "'s file: one output would overwrite the other");
     seen.emplace_back(flag, file);
+  }
+}
+
+void checkOutputsSpareStdout(
+    std::initializer_list<std::pair<const char*, const std::string*>> outputs, bool json) {
+  if (!json) return;
+  struct stat out {};
+  if (::fstat(STDOUT_FILENO, &out) != 0) return;  // closed: nothing to mix with
+  for (const auto& [flag, path] : outputs) {
+    struct stat st {};
+    if (path->empty() || ::stat(path->c_str(), &st) != 0) continue;
+    if (st.st_dev == out.st_dev && st.st_ino == out.st_ino)
+      throw InvalidInputError(std::string(flag) + ": " + *path +
+                              " is standard output, where --json writes its summary: the two "
+                              "would mix (name a file, or leave out --json)");
   }
 }
 

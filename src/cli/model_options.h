@@ -97,6 +97,12 @@ TimedLoad parseTimedLoad(const std::string& text, const std::string& flag);
 void checkDistinctOutputs(
     std::initializer_list<std::pair<const char*, const std::string*>> outputs);
 
+/// With --json the summary is standard output: an output naming the same file (/dev/stdout,
+/// the terminal, the file stdout is redirected to) would mix the two, and a reader could parse
+/// neither. InvalidInputError "<flag>: <path> is standard output, where --json writes ...".
+void checkOutputsSpareStdout(
+    std::initializer_list<std::pair<const char*, const std::string*>> outputs, bool json);
+
 /// The model the command works on, as the last ModelOptions::load() named it, with a note on
 /// its busiest vertex where that may need much memory: an out-of-memory error names it.
 std::string& modelInWork();

@@ -234,6 +234,7 @@ RenderJobResult runRenderJob(const RenderJobOptions& o) {
   for (const std::string* path : {&o.run.csv, &o.run.stateOut})
     if (!path->empty()) io::checkOutputFile(*path);
   checkDistinctOutputs({{"--csv", &o.run.csv}, {"--state-out", &o.run.stateOut}});
+  checkOutputsSpareStdout({{"--csv", &o.run.csv}, {"--state-out", &o.run.stateOut}}, o.run.json);
   render::OffscreenRenderer renderer;  // IOError when OSMesa cannot give a context
   renderer.checkSize(result.width, result.height, "--size");
 
