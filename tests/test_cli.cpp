@@ -767,6 +767,23 @@ TEST_F(Cli, TheDocumentedSceneRunsCleanlyAndAnEditThatChangesNothingSaysSo) {
         << command << ": " << late.err;
     EXPECT_EQ(late.err.find("/edits/0"), std::string::npos) << late.err;
   }
+  // So are loads that start at or after it (they never act), per source, naming the first.
+  // (The run ends at 0.581 s: 0.5 s in whole steps of 0.194 s.)
+  std::ofstream(path("loads.json")) << R"({"mesh": "builtin:torus", "forces": [
+      {"vertex": 1, "force": [0, 0, 1], "start": 0.1, "end": 0.2},
+      {"vertex": 2, "force": [0, 0, 1], "start": 50}, {"vertex": 3, "force": [0, 0, 1], "start": 60}],
+      "torques": [{"vertex": 4, "torque": [0, 0, 1], "start": 0.6}],
+      "simulation": {"time": 0.5}})";
+  const Result loads = run("simulate " + path("loads.json") +
+                           " --force 3:0,0,1:100:200 --force 4:0,0,1 --torque 5:1,0,0:0:1");
+  ASSERT_EQ(loads.status, 0) << loads.err;
+  for (const std::string said :
+       {"loads.json: /forces/1 starts at t = 50 s and 1 more like it, at or after the run's end "
+        "(t = 0.58",
+        "loads.json: /torques/0 starts at t = 0.6 s, at or after the run's end (t = 0.58",
+        "--force 3:0,0,1:100:200 starts at t = 100 s, at or after the run's end (t = 0.58"})
+    EXPECT_NE(loads.err.find(said), std::string::npos) << said << "\n" << loads.err;
+  EXPECT_EQ(std::count(loads.err.begin(), loads.err.end(), '\n'), 3) << loads.err;
 }
 
 TEST_F(Cli, ASceneEditThatStiffensTheModelSplitsTheStepsAndTheRunGoesOn) {

@@ -100,8 +100,10 @@ int runSimulate(const SimulateOptions& options) {
   const double wall =
       std::chrono::duration<double>(std::chrono::steady_clock::now() - wallStart).count();
   throwIfInterrupted();
-  if (!diverged)
-    edits.sayWhatIsLeft(sim);  // a signal in the loading or the last cycle: nothing written yet
+  if (!diverged) {  // a signal in the loading or the last cycle: nothing written yet
+    edits.sayWhatIsLeft(sim);
+    options.run.sayLoadsLeft(loaded, sim.time());
+  }
   if (wantCsv)
     io::writeFileAtomically(options.run.csv, [&](std::ostream& out) { out << csv.str(); });
   if (!options.run.stateOut.empty()) io::saveState(run.lastGood(), options.run.stateOut);

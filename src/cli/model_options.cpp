@@ -563,6 +563,41 @@ void addSceneConstraints(const LoadedModel& loaded, Simulation& sim) {
   }
 }
 
+void RunOptions::sayLoadsLeft(const LoadedModel& loaded, double end) const {
+  // Said, not left silent: a force from t = 10 s in a run of 3 s did nothing, and the run
+  // exited 0 as if it had pushed (a QA pass).
+  auto say = [&](const std::string& first, double start, size_t more) {
+    std::ostringstream text;
+    text.precision(6);
+    text << first << " starts at t = " << start << " s";
+    if (more > 0) text << " and " << more << " more like it";
+    text << ", at or after the run's end (t = " << end
+         << " s): " << (more > 0 ? "they never act" : "it never acts")
+         << " (--time or --steps longer would reach " << (more > 0 ? "them" : "it") << ")";
+    warn(text.str());
+  };
+  const double slack = 1e-9 * std::max(1.0, std::abs(end));
+  if (loaded.scene)
+    for (const auto& [key, list] : {std::pair{"forces", &loaded.scene->forces},
+                                    std::pair{"torques", &loaded.scene->torques}}) {
+      size_t late = 0, first = 0;
+      for (size_t i = 0; i < list->size(); ++i)
+        if ((*list)[i].start >= end - slack && !(late++)) first = i;
+      if (late)
+        say(loaded.source + ": /" + key + "/" + std::to_string(first), (*list)[first].start,
+            late - 1);
+    }
+  for (const auto& [flag, texts] :
+       {std::pair{"--force", &forces}, std::pair{"--torque", &torques}}) {
+    size_t late = 0, first = 0;
+    for (size_t i = 0; i < texts->size(); ++i)
+      if (parseTimedLoad((*texts)[i], flag).start >= end - slack && !(late++)) first = i;
+    if (late)
+      say(std::string(flag) + " " + (*texts)[first], parseTimedLoad((*texts)[first], flag).start,
+          late - 1);
+  }
+}
+
 void RunOptions::prepare(const LoadedModel& loaded, Simulation& sim) const {
   State state = State::atRest(loaded.model.mesh);
   if (!stateIn.empty()) state = io::loadState(stateIn, loaded.model.mesh.numVertices());

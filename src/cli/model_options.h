@@ -80,6 +80,10 @@ struct RunOptions {
   /// Initial state (rest, --state-in, --perturb), loads and constraints (scene, then flags)
   /// on `sim`. A constraint without a target or normal holds the initial state's.
   void prepare(const LoadedModel& loaded, Simulation& sim) const;
+  /// After a run that ended at `end` seconds: a warning for each source of loads (the
+  /// scene's forces and torques, --force, --torque) with loads that start at or after it
+  /// and so never acted, naming the first (as TimedEdits::sayWhatIsLeft does for edits).
+  void sayLoadsLeft(const LoadedModel& loaded, double end) const;
 };
 
 /// "I" or "I:X,Y,Z" (--pin, --pin-normal); throws InvalidInputError naming the flag.

@@ -456,7 +456,10 @@ RenderJobResult runRenderJob(const RenderJobOptions& o) {
     result.editsApplied = edits.applied;
     result.matrixDifference = edits.maxDifference;
     sayNothingActs();
-    if (!result.diverged) edits.sayWhatIsLeft(sim);
+    if (!result.diverged) {
+      edits.sayWhatIsLeft(sim);
+      o.run.sayLoadsLeft(loaded, sim.time());
+    }
 
     // The frames go to their names last, over an earlier run's (its frames up to the last good
     // state when it diverged): every name checked before any output is written, so that a
