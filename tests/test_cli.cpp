@@ -268,8 +268,8 @@ TEST_F(Cli, InfoOfASceneSaysWhatTheSceneSets) {
   EXPECT_TRUE(scene["dt"].is_null());
   EXPECT_EQ(scene["time"], 5.0);
   const Result text = run("info " + path("s.json"));
-  EXPECT_NE(text.out.find("scene: 2 pins (1 travelling), 1 normal pins, 1 forces, 0 torques, "
-                          "1 timed edits; scheme default, dt_ratio 0.4, 5 s, perturb 0.01"),
+  EXPECT_NE(text.out.find("scene: 2 pins (1 travelling), 1 normal pin, 1 force, 0 torques, "
+                          "1 timed edit; scheme default, dt_ratio 0.4, 5 s, perturb 0.01"),
             std::string::npos)
       << text.out;
   EXPECT_NE(text.out.find("stiffness cap 4 N/m"), std::string::npos) << text.out;

@@ -993,6 +993,13 @@ TEST(Constraints, ANormalPinOnAnUnbracedModelFeedsNoEnergyIn) {
   EXPECT_NE(warnings[0].find("normal constraint at vertex 3: its ring has no angle springs"),
             std::string::npos)
       << warnings[0];
+  // Given twice: kept once, and said once (the ring's warning came again with it).
+  sim.addNormalConstraint(3);
+  const std::vector<std::string> again = sim.takeWarnings();
+  ASSERT_EQ(again.size(), 1u);
+  EXPECT_NE(again[0].find("normal constraint at vertex 3: given twice; kept once"),
+            std::string::npos)
+      << again[0];
   sim.step();
   const double start = sim.diagnostics().total();
   double low = start, high = start;

@@ -136,9 +136,15 @@ int runInfo(const ModelOptions& options, bool json) {
   if (std::isfinite(p.stiffnessCap)) std::cout << "  stiffness cap " << p.stiffnessCap << " N/m\n";
   if (!p.gravity.isZero()) std::cout << "  gravity [" << p.gravity.transpose() << "] m/s^2\n";
   if (scene) {
-    std::cout << "  scene: " << pins << " pins (" << travelling << " travelling), " << normals
-              << " normal pins, " << scene->forces.size() << " forces, " << scene->torques.size()
-              << " torques, " << scene->edits.size() << " timed edits; scheme "
+    auto count = [](size_t n, const char* one, const char* many) {
+      return std::to_string(n) + " " + (n == 1 ? one : many);
+    };
+    std::cout << "  scene: " << count(static_cast<size_t>(pins), "pin", "pins") << " ("
+              << travelling << " travelling), "
+              << count(static_cast<size_t>(normals), "normal pin", "normal pins") << ", "
+              << count(scene->forces.size(), "force", "forces") << ", "
+              << count(scene->torques.size(), "torque", "torques") << ", "
+              << count(scene->edits.size(), "timed edit", "timed edits") << "; scheme "
               << io::schemeName(scene->simulation.scheme);
     if (scene->simulation.dt) std::cout << ", dt " << *scene->simulation.dt << " s";
     if (scene->simulation.dtRatio) std::cout << ", dt_ratio " << *scene->simulation.dtRatio;

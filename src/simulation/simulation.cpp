@@ -377,7 +377,9 @@ Index Simulation::addNormalConstraint(Index vertex, std::optional<Vec3> normal) 
   const Vec3 direction =
       normal ? *normal
              : bestPlaneNormal(model_.mesh, state_.position, vertex).value_or(Vec3::UnitZ());
+  const size_t before = constraints_.constraints().size();
   const Index id = constraints_.addNormal(model_.mesh, state_.position, vertex, direction);
+  if (constraints_.constraints().size() == before) return id;  // merged: said once already
   // Without angle springs the ring folds freely, and where it folds through a shape with no
   // flattest direction its plane, hence the normal, is undefined: the constraint lets go
   // there and turns the normal back once the ring flattens, up to its turn budget
