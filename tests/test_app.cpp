@@ -1144,6 +1144,14 @@ TEST(Recording, MalformedRecordingsAreRefusedWithTheLine) {
          "line 3: comes after the footer (end_cycle, line 2)");
   refuse("{\"end_cycle\": 3}\n{\"cycle\": 1, \"type\": \"play\"}\n",
          "line 2: comes after the footer");
+  // A footer with a "ui" key was read as a ui line (its end_cycle dropped); a hash with a
+  // sign, "0x" or a space was read by stoull; a time is a time.
+  refuse("{\"cycle\": 0, \"type\": \"play\"}\n{\"end_cycle\": 3, \"ui\": \"x\"}\n",
+         "line 2: ui: unknown field of the footer");
+  for (const char* hash : {"-000000000000001", "0x00000000000001", " 00000000000001f"})
+    refuse(std::string("{\"end_cycle\": 3, \"state_hash\": \"") + hash + "\"}\n",
+           "line 1: state_hash: expected a 16-digit hexadecimal hash");
+  refuse("{\"end_cycle\": 3, \"time\": -1}\n", "line 1: time: expected a number of seconds >= 0");
   EXPECT_EQ(readRecording(write("{\"cycle\": 0, \"type\": \"play\"}\n{\"end_cycle\": 3, \"time\": "
                                 "0.5, \"state_hash\": \"00000000000000ff\"}\n\n"))
                 .stateHash,

@@ -1635,7 +1635,7 @@ TEST(Substeps, AnEditThatStiffensTheModelSplitsTheCyclesOfTheSchemesThatNeedIt) 
       ASSERT_EQ(sim.substeps(), conditional ? 16 : 1) << "cycle " << k;
       highest = std::max(highest, sim.diagnostics().total());
       for (const std::string& w : sim.takeWarnings())
-        lowered += w.find("lowered T_max") != std::string::npos;
+        lowered += w.find("after an edit") != std::string::npos;
     }
     EXPECT_EQ(lowered, conditional ? 1 : 0);
     EXPECT_EQ(sim.period(), period);
@@ -1670,8 +1670,51 @@ TEST(Substeps, AnEditThatStiffensTheModelSplitsTheCyclesOfTheSchemesThatNeedIt) 
     sim.step();
     EXPECT_EQ(sim.substeps(), 1);
     for (const std::string& w : sim.takeWarnings())
-      EXPECT_EQ(w.find("lowered T_max"), std::string::npos) << w;
+      EXPECT_EQ(w.find("after an edit"), std::string::npos) << w;
   }
+}
+
+TEST(Substeps, TheSplitAfterEditsDependsOnThePropertiesAloneAndHoldsTheSchemesLimit) {
+  // Found by a review and a QA pass of the rule above. (1) The count is a function of the
+  // properties: stiffness x4 then x0.5 (the paper scheme split into 2, then back to 1) is
+  // what a run resumed with both edits applied at once (x2) takes, so a resumed run is the
+  // whole run. (2) A run set near the limit (0.95 T_max) is not split by a stiffening of
+  // 1e-4, which leaves it within the limit. (3) The paper scheme's limit is also its
+  // damping's (1 / gamma): damping painted on a model whose T_max it leaves alone split
+  // nothing, and the run diverged at step 8 (exit 3); it is split under that limit now.
+  const Model model = makeModel(makeBuiltin("builtin:torus"), ModelSpec{.angular = 0.05});
+  const Index n = model.mesh.numVertices();
+  std::vector<Index> all(static_cast<size_t>(n));
+  for (Index v = 0; v < n; ++v) all[static_cast<size_t>(v)] = v;
+  auto edited = [&](Simulation& sim, double factor) {
+    sim.mutableProperties().stiffness *= factor;
+    sim.propertiesChanged(all);
+    sim.step();
+    return sim.substeps();
+  };
+  SimulationSettings paper = settingsFor(model, 0.5, Scheme::Paper);
+  Simulation whole(model, paper), resumed(model, paper);
+  EXPECT_EQ(edited(whole, 4.0), 2);
+  EXPECT_EQ(edited(whole, 0.5), 1);
+  EXPECT_EQ(edited(resumed, 2.0), 1);
+
+  Simulation near(model, settingsFor(model, 0.95));
+  EXPECT_EQ(edited(near, 1.0001), 1);
+  EXPECT_TRUE(near.takeWarnings().empty());
+  EXPECT_EQ(edited(near, 1.2), 2);  // 1.04 T_max: past the limit
+
+  Simulation damped(model, paper);
+  State start = State::atRest(model.mesh);
+  randomVelocity(model.properties.mass, 0.05, 7, start.velocity);
+  damped.setState(start);
+  const double tMax = criticalPeriod(damped.stepper().system());
+  const double e0 = damped.diagnostics().total();
+  damped.mutableProperties().damping.setConstant(20.0);  // 1 / gamma = 0.05 s = 0.13 T_max
+  damped.propertiesChanged(all);
+  for (int k = 0; k < 100; ++k) ASSERT_NO_THROW(damped.step()) << k;
+  EXPECT_EQ(criticalPeriod(damped.stepper().system()), tMax);
+  EXPECT_EQ(damped.substeps(), 4);              // 0.0484 s steps, within 0.99 of 0.05 s
+  EXPECT_LT(damped.diagnostics().total(), e0);  // damped, not run away
 }
 
 // ---- diagnostics (Simulation::diagnostics) ----------------------------------------------------

@@ -4,6 +4,7 @@
 #include <unistd.h>
 
 #include <algorithm>
+#include <cctype>
 #include <cerrno>
 #include <cmath>
 #include <cstdio>
@@ -33,11 +34,16 @@ std::string hex(std::uint64_t v) {
 }
 
 std::uint64_t parseHex(const json& j, const std::string& where) {
-  if (!j.is_string() || j.get<std::string>().size() != 16)
+  // Sixteen hex digits and nothing else: stoull alone took a sign, "0x" and spaces
+  // ("-000000000000001" was compared as ffffffffffffffff).
+  const std::string text = j.is_string() ? j.get<std::string>() : std::string();
+  if (text.size() != 16 || !std::all_of(text.begin(), text.end(), [](char c) {
+        return std::isxdigit(static_cast<unsigned char>(c)) != 0;
+      }))
     throw InvalidInputError(where + ": expected a 16-digit hexadecimal hash");
   try {
     size_t used = 0;
-    const auto v = std::stoull(j.get<std::string>(), &used, 16);
+    const auto v = std::stoull(text, &used, 16);
     if (used != 16) throw std::invalid_argument("hash");
     return v;
   } catch (const std::exception&) {
@@ -186,16 +192,16 @@ Recording readRecording(const std::string& path) {
       if (rec.setup || !rec.commands.empty() || !rec.ui.empty())
         throw InvalidInputError(where + ": the header must be the first line");
       rec.setup = setupFromHeader(j, path, rec.meshHash);
-    } else if (j.contains("ui")) {
-      rec.ui.emplace_back(number, std::move(j));
     } else if (j.contains("end_cycle")) {
       // Strict, as the header is: a misspelt "state_hash" would leave the replay uncompared.
       for (auto it = j.begin(); it != j.end(); ++it)
         if (it.key() != "end_cycle" && it.key() != "time" && it.key() != "state_hash")
           throw InvalidInputError(where + ": " + it.key() +
                                   ": unknown field of the footer (end_cycle, time, state_hash)");
-      if (j.contains("time") && !j.at("time").is_number())
-        throw InvalidInputError(where + ": time: expected a number of seconds");
+      if (j.contains("time") &&
+          (!j.at("time").is_number() || !std::isfinite(j.at("time").get<double>()) ||
+           j.at("time").get<double>() < 0.0))
+        throw InvalidInputError(where + ": time: expected a number of seconds >= 0");
       footerLine = number;
       const json& e = j.at("end_cycle");
       if (!e.is_number_unsigned())
@@ -207,6 +213,8 @@ Recording readRecording(const std::string& path) {
                                 std::to_string(kMaxRecordedCycle) + ")");
       if (j.contains("state_hash"))
         rec.stateHash = parseHex(j.at("state_hash"), where + ": state_hash");
+    } else if (j.contains("ui")) {
+      rec.ui.emplace_back(number, std::move(j));
     } else {
       if (!j.contains("cycle") || !j.at("cycle").is_number_unsigned())
         throw InvalidInputError(where + ": expected \"cycle\" (a step count) with the command");

@@ -61,6 +61,10 @@ std::string oneLine(std::string text) {
 }  // namespace
 
 int run(int argc, char** argv) {
+  // A reader that closed its end (`zsculpt info M | head -1`, `| true`) killed the process by
+  // SIGPIPE (exit 141, no word): ignored, the write fails with EPIPE and is said as any failed
+  // write to standard output is (`delivered` below, or the file's IOError), exit 2.
+  std::signal(SIGPIPE, SIG_IGN);
   CLI::App app{"zsculpt: physics-based sculpting with the z-domain solver of Ray and Qin"};
   app.require_subcommand(0, 1);
   app.set_version_flag("--version", std::string("zsculpt ") + ZSCULPT_VERSION);

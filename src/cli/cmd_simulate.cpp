@@ -76,6 +76,7 @@ int runSimulate(const SimulateOptions& options) {
     if (!run.step(k)) {
       diverged = true;
       divergedAt = k;
+      mostSubsteps = std::max(mostSubsteps, sim.substeps());  // the failed cycle's too
       break;
     }
     if (sim.substeps() > 1) ++splitCycles;
@@ -192,8 +193,8 @@ int runSimulate(const SimulateOptions& options) {
                 << ledger.constraintsAngular.norm() << ")\n";
     }
     if (splitCycles > 0)
-      std::cout << splitCycles << " steps split for fast motion, into up to " << mostSubsteps
-                << " substeps\n";
+      std::cout << splitCycles << " steps split (for fast motion, or after an edit that stiffened "
+                << "the model), into up to " << mostSubsteps << " substeps\n";
     if (retakenCycles > 0)
       std::cout << retakenCycles
                 << " steps taken again in more substeps (their motion grew within them)\n";

@@ -278,9 +278,13 @@ void checkOutputsSpareStdout(
   if (!json) return;
   struct stat out {};
   if (::fstat(STDOUT_FILENO, &out) != 0) return;  // closed: nothing to mix with
+  struct stat null {};
+  const bool haveNull = ::stat("/dev/null", &null) == 0;
   for (const auto& [flag, path] : outputs) {
     struct stat st {};
     if (path->empty() || ::stat(path->c_str(), &st) != 0) continue;
+    // Nothing mixes in /dev/null (`--json --csv /dev/null > /dev/null` was refused).
+    if (haveNull && S_ISCHR(st.st_mode) && st.st_rdev == null.st_rdev) continue;
     if (st.st_dev == out.st_dev && st.st_ino == out.st_ino)
       throw InvalidInputError(std::string(flag) + ": " + *path +
                               " is standard output, where --json writes its summary: the two "

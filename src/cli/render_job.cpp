@@ -174,7 +174,8 @@ std::vector<long> frameSteps(const RenderJobOptions& o, RunOptions::Resolved& ru
   // A run of fewer steps than frames asked for has a frame per step and no more.
   if (o.frames && static_cast<long>(at.size()) < *o.frames)
     warn("--frames " + std::to_string(*o.frames) + ": the run has " + std::to_string(steps) +
-         " steps, so " + std::to_string(at.size()) + " frames (one per state)");
+         (steps == 1 ? " step, so " : " steps, so ") + std::to_string(at.size()) +
+         (at.size() == 1 ? " frame (of its one state)" : " frames (one per state)"));
   return at;
 }
 

@@ -65,7 +65,17 @@ void TimedEdits::beforeStep(Simulation& sim) {
     }
     ++applied;
     sim.propertiesChanged(result.matrixRows);  // local, even for global edits
-    energyChange += std::abs(DivergenceGuard::energyOf(sim, sim.diagnostics()) - energyBefore);
+    const double energyAfter = DivergenceGuard::energyOf(sim, sim.diagnostics());
+    // Input, not a divergence: rest lengths scaled by 1e300 made the springs' energy infinite,
+    // and the run "diverged" at the next step, writing that step's state as the last good one.
+    if (!std::isfinite(energyAfter) && std::isfinite(energyBefore)) {
+      std::ostringstream text;
+      text << source << ": /edits/" << edit.source << " at t = " << sim.time()
+           << " s: the model's energy after it is not finite (a value beyond what a double "
+              "holds)";
+      throw InvalidInputError(text.str());
+    }
+    energyChange += std::abs(energyAfter - energyBefore);
     if (verify)
       maxDifference =
           std::max(maxDifference, editing::verifyAgainstRebuild(sim.model(), sim.stepper().system(),

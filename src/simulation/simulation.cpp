@@ -486,6 +486,10 @@ void Simulation::setSubsteps(int n) {
 void Simulation::notePeriodShare() {
   const double tMax = criticalPeriod(stepper_->system());
   periodShare_ = std::isfinite(tMax) && tMax > 0.0 ? cyclePeriod_ / tMax : 0.0;
+  // A period set past the Gershgorin bound (the tight limit allowed it, or --allow-unstable)
+  // keeps its share: the splits do not hold it to the bound.
+  startedBeyondBound_ =
+      cyclePeriod_ > 0.99 * gershgorinStablePeriodLimit(stepper_->scheme(), stepper_->system());
   stableSubsteps_ = 1;
   stiffnessEdited_ = false;
 }
@@ -494,31 +498,41 @@ void Simulation::chooseStableSubsteps() {
   if (!stiffnessEdited_) return;
   stiffnessEdited_ = false;
   const SystemMatrices& system = stepper_->system();
-  const double limit = gershgorinStablePeriodLimit(stepper_->scheme(), system);
+  const Scheme scheme = stepper_->scheme();
+  const double limit = gershgorinStablePeriodLimit(scheme, system);
   if (!std::isfinite(limit)) {  // exact and implicit Euler are stable at any period
     stableSubsteps_ = 1;
     return;
   }
   const double tMax = criticalPeriod(system);
-  const double floor = std::min(kStiffenedStepShare * tMax, 0.99 * limit);
-  // Split into steps as long as the period's share of T_max when it was set (or the floor),
-  // but only once the step comes near the limit: a relax that stiffens the model by 1 %
-  // must not halve a run's speed.
-  const double longest = std::isfinite(tMax) ? std::max(periodShare_ * tMax, floor) : floor;
-  const double trigger = std::max(longest, kStiffenedTrigger * limit);
-  int needed = 1;
-  while (needed < kMaxSubsteps && cyclePeriod_ / needed > longest * (1.0 + 1e-9)) needed *= 2;
+  const double shareStep = std::isfinite(tMax) ? periodShare_ * tMax : 0.0;
+  // The steps of a split cycle: as long as the period's share of T_max when it was set, or
+  // kStiffenedStepShare, within the limit (the paper scheme's may be its damping's, with
+  // T_max infinite or unchanged).
+  double longest = std::max(shareStep, std::min(kStiffenedStepShare * tMax, 0.99 * limit));
+  if (!startedBeyondBound_) longest = std::min(longest, 0.99 * limit);
+  // Split only once the step comes near the limit (a relax that stiffens the model by 1 %
+  // must not halve a run's speed), or, for a run set near it already, nearer still.
+  const double trigger = startedBeyondBound_                     ? longest
+                         : shareStep > kStiffenedTrigger * limit ? 0.99 * limit
+                                                                 : kStiffenedTrigger * limit;
+  // A function of the properties alone, not of the splits before: a run resumed after
+  // several edits (--start-time, which applies them at once) splits as the whole run did.
+  int n = 1;
+  if (cyclePeriod_ > trigger * (1.0 + 1e-9))
+    while (n < kMaxSubsteps && cyclePeriod_ / n > longest * (1.0 + 1e-9)) n *= 2;
   const int before = stableSubsteps_;
-  stableSubsteps_ = cyclePeriod_ / before > trigger ? needed : std::min(before, needed);
-  if (stableSubsteps_ <= before) return;
-  const int n = stableSubsteps_;
+  stableSubsteps_ = n;
+  if (n <= before) return;
   std::ostringstream msg;
-  msg.precision(4);
-  msg << "an edit at t = " << state_.time << " s lowered T_max to " << tMax
-      << " s, so that a step of " << cyclePeriod_ / before << " s (" << cyclePeriod_ / before / tMax
-      << " T_max) is near or past the " << schemeName(stepper_->scheme())
-      << " scheme's stable limit: each cycle of " << cyclePeriod_ << " s is now taken in " << n
-      << " steps of " << cyclePeriod_ / n << " s (" << cyclePeriod_ / n / tMax << " T_max)";
+  msg.precision(6);
+  // At the cycle after the edit (a resumed run applies the edits before its start at once).
+  msg << "at t = " << state_.time << " s, after an edit, the " << schemeName(scheme)
+      << " scheme's stable limit is " << limit << " s";
+  if (std::isfinite(tMax)) msg << " (T_max " << tMax << " s)";
+  msg << ", near or below the cycle of " << cyclePeriod_ << " s: each cycle is now taken in "
+      << (substepping() ? "at least " : "") << n << " steps of " << cyclePeriod_ / n << " s";
+  if (std::isfinite(tMax)) msg << " (" << cyclePeriod_ / n / tMax << " T_max)";
   if (cyclePeriod_ / n > longest * (1.0 + 1e-9))
     msg << ", still too long: " << kMaxSubsteps
         << " steps are the most a cycle takes; lower the time step";

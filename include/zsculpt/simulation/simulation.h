@@ -73,13 +73,15 @@ enum class RigidFrame {
 /// The most steps SimulationSettings::substepStrain splits a cycle into.
 inline constexpr int kMaxSubsteps = 64;
 /// An edit that stiffens the model lowers T_max (equation 5) under a cycle whose period was
-/// set as a share of the old one. Once a step of a conditionally stable scheme (default,
-/// paper, symplectic Euler) passes kStiffenedTrigger of the scheme's Gershgorin limit, each
-/// cycle is taken in 2, 4, ... steps, the fewest that bring every step back within the larger
-/// of the share of T_max the period was set at and kStiffenedStepShare (or 0.99 of the limit,
-/// if lower). The cycle's period, and so a run's step count, time and frames, stays. The
-/// window keeps its share by lowering the period itself (app::Session); a headless run has a
-/// step count and frames fixed in cycles.
+/// set as a share of the old one. Once the cycle of a conditionally stable scheme (default,
+/// paper, symplectic Euler) passes kStiffenedTrigger of the scheme's Gershgorin limit (0.99
+/// of it for a period set beyond the trigger already), each cycle is taken in 2, 4, ... up
+/// to kMaxSubsteps steps, the fewest that bring every step back within the larger of the
+/// share of T_max the period was set at and kStiffenedStepShare, and within 0.99 of the
+/// limit. The count is a function of the properties (not of the splits before), so a run
+/// resumed after several edits splits as the whole run did. The cycle's period, and so a
+/// run's step count, time and frames, stays. The window keeps its share by lowering the
+/// period itself (app::Session); a headless run has a step count and frames fixed in cycles.
 inline constexpr double kStiffenedTrigger = 0.9;
 inline constexpr double kStiffenedStepShare = 0.5;
 /// A cycle whose end velocities ask for more than this many times the steps it took (by
@@ -295,6 +297,7 @@ class Simulation {
   // the fewest steps a cycle takes for it since, and whether an edit came since they were
   // counted.
   double periodShare_ = 0.0;
+  bool startedBeyondBound_ = false;  // the period was set past 0.99 of the Gershgorin limit
   int stableSubsteps_ = 1;
   bool stiffnessEdited_ = false;
   int retakes_ = 0;
