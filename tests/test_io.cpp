@@ -181,6 +181,23 @@ TEST(MeshImport, VerticesKeepTheOrderOfFirstOccurrence) {
   EXPECT_EQ(facesOf(box)[1], (std::vector<Index>{4, 5, 6, 7}));
 }
 
+TEST(MeshImport, ACoordinateBeyondSinglePrecisionIsSaidSo) {
+  // assimp reads floats: `v 1e308 1 0`, a finite double in the file, came out infinite and
+  // was called "non-finite" with no word of why (a QA pass).
+  const fs::path file =
+      fs::temp_directory_path() / ("zsculpt_huge_" + std::to_string(::getpid()) + ".obj");
+  std::ofstream(file) << "v 0 0 0\nv 1 0 0\nv 1e308 1 0\nf 1 2 3\n";
+  try {
+    (void)loadMesh(file.string());
+    ADD_FAILURE() << "accepted";
+  } catch (const InvalidInputError& e) {
+    EXPECT_NE(std::string(e.what()).find("beyond the importer's single-precision range"),
+              std::string::npos)
+        << e.what();
+  }
+  fs::remove(file);
+}
+
 TEST(MeshImport, WeldsAcrossMeshesOfAFile) {
   MeshLoadReport report;
   const Mesh strip = loadMesh(data("two_objects.obj"), &report);

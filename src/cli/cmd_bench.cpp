@@ -805,7 +805,7 @@ void addBenchCommand(CLI::App& root, CommandList& commands) {
           },
           ""));
   app->add_option("--steps", o->steps,
-                  "steps to time (default: about 2 s worth, at least 5 blocks)")
+                  "steps to time (default, or 0: about 2 s worth, at least 5 blocks)")
       ->check(CLI::Validator(
           [](std::string& text) -> std::string {
             const double value = std::strtod(text.c_str(), nullptr);

@@ -318,8 +318,12 @@ Mesh meshFromScene(const aiScene& scene, const std::string& name, MeshLoadReport
       Vec3 p(a.x, a.y, a.z);
       if (!identity) p = (transform * p.homogeneous()).hnormalized();
       if (!p.allFinite())
+        // assimp reads coordinates in single precision: a finite 1e308 in the file comes
+        // out infinite, so the message says both.
         throw InvalidInputError(name + ": vertex " + std::to_string(v) + " of mesh " +
-                                std::to_string(m) + " has a non-finite coordinate");
+                                std::to_string(m) +
+                                " has a non-finite coordinate as read (infinite or NaN, or "
+                                "beyond the importer's single-precision range, about 3.4e38)");
       welded[v] = welder.add(p);
     }
     // A copy: clang 14 cannot capture a structured binding in a lambda (the fuzz build).
