@@ -133,6 +133,20 @@ State perturbed(const Model& model, double amplitude, unsigned seed) {
 
 // ---- forces ------------------------------------------------------------------------------
 
+TEST(Properties, AnEdgesStiffnessIsTheHarmonicMeanOverTheWholeRangeOfDoubles) {
+  // 2 a b / (a + b) overflowed past 1e154: 1e308 at both ends gave NaN, and a model at rest
+  // was refused as one whose "springs' energy is not finite" (a QA pass). Ordinary values
+  // keep their bits.
+  EXPECT_EQ(edgeStiffness(2.0, 3.0), 2.0 * 2.0 * 3.0 / 5.0);
+  EXPECT_EQ(edgeStiffness(0.0, 5.0), 0.0);
+  EXPECT_EQ(edgeStiffness(0.0, 0.0), 0.0);
+  for (const double k : {1e154, 1e200, 1e300, 1e308}) {
+    EXPECT_NEAR(edgeStiffness(k, k) / k, 1.0, 1e-15) << k;
+    EXPECT_NEAR(edgeStiffness(k, 0.5 * k) / (k / 3.0 * 2.0), 1.0, 1e-15) << k;
+  }
+  EXPECT_NEAR(edgeStiffness(1e308, 1.0), 2.0, 1e-15);
+}
+
 TEST(Properties, LabelsAreWordsWithUnitsAndNamesStayIdentifiers) {
   // Legends and panels read "rest length (m)" (they read "rest_length (m)"); scene files and
   // --property keep the identifier.

@@ -15,6 +15,7 @@
 // vertex changes only that vertex's edges.
 
 #include <array>
+#include <cmath>
 #include <limits>
 #include <optional>
 #include <string>
@@ -124,7 +125,13 @@ struct PhysicalProperties {
 /// kappa_ij of an edge from its ends' stiffness: the harmonic mean (series half-springs).
 inline double edgeStiffness(double kappaI, double kappaJ) {
   const double sum = kappaI + kappaJ;
-  return sum > 0.0 ? 2.0 * kappaI * kappaJ / sum : 0.0;
+  if (!(sum > 0.0)) return 0.0;
+  const double mean = 2.0 * kappaI * kappaJ / sum;
+  // Past 1e154 the product overflows (1e308 and 1e308 gave inf / inf = NaN, a start "whose
+  // springs' energy is not finite" at rest): the same mean in a form that does not, taken
+  // only there so that every ordinary value keeps its bits.
+  if (std::isfinite(mean) || !std::isfinite(kappaI) || !std::isfinite(kappaJ)) return mean;
+  return 2.0 / (1.0 / kappaI + 1.0 / kappaJ);
 }
 
 /// Section 4.3: sigma_i = min(kappa_0 / kappa_i, 1); the elastic share of vertex i's force.
