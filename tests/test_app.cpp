@@ -1152,6 +1152,11 @@ TEST(Recording, MalformedRecordingsAreRefusedWithTheLine) {
     refuse(std::string("{\"end_cycle\": 3, \"state_hash\": \"") + hash + "\"}\n",
            "line 1: state_hash: expected a 16-digit hexadecimal hash");
   refuse("{\"end_cycle\": 3, \"time\": -1}\n", "line 1: time: expected a number of seconds >= 0");
+  // A key given twice: the parser kept the last silently.
+  refuse("{\"cycle\": 0, \"type\": \"play\"}\n{\"end_cycle\": 3, \"end_cycle\": 4}\n",
+         "line 2: end_cycle: given twice");
+  refuse("{\"cycle\": 0, \"type\": \"pin\", \"vertex\": 1, \"vertex\": 2}\n",
+         "line 1: vertex: given twice");
   EXPECT_EQ(readRecording(write("{\"cycle\": 0, \"type\": \"play\"}\n{\"end_cycle\": 3, \"time\": "
                                 "0.5, \"state_hash\": \"00000000000000ff\"}\n\n"))
                 .stateHash,

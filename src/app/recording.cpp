@@ -11,6 +11,7 @@
 #include <cstring>
 #include <filesystem>
 #include <fstream>
+#include <set>
 #include <sstream>
 
 #include "zsculpt/app/view.h"
@@ -179,14 +180,30 @@ Recording readRecording(const std::string& path) {
       throw InvalidInputError(where + ": comes after the footer (end_cycle, line " +
                               std::to_string(footerLine) + "), which ends the session");
     json j;
+    // A key given twice in one object: the parser keeps the last silently (a footer's
+    // "end_cycle" twice read the second). Refused, as the scene reader refuses it.
+    std::vector<std::set<std::string>> keys;
+    std::string twice;
+    auto noDuplicateKeys = [&](int, json::parse_event_t event, json& parsed) {
+      if (event == json::parse_event_t::object_start) {
+        keys.emplace_back();
+      } else if (event == json::parse_event_t::object_end) {
+        if (!keys.empty()) keys.pop_back();
+      } else if (event == json::parse_event_t::key && !keys.empty()) {
+        const std::string key = parsed.get<std::string>();
+        if (!keys.back().insert(key).second && twice.empty()) twice = key;
+      }
+      return true;
+    };
     try {
-      j = json::parse(line);
+      j = json::parse(line, noDuplicateKeys);
     } catch (const json::exception& e) {
       std::string what = e.what();
       const auto close = what.find("] ");
       if (close != std::string::npos) what.erase(0, close + 2);
       throw InvalidInputError(where + ": " + what);
     }
+    if (!twice.empty()) throw InvalidInputError(where + ": " + twice + ": given twice");
     if (!j.is_object()) throw InvalidInputError(where + ": expected a JSON object");
     if (j.contains("zsculpt_recording")) {
       if (rec.setup || !rec.commands.empty() || !rec.ui.empty())
