@@ -145,6 +145,9 @@ TEST(Properties, AnEdgesStiffnessIsTheHarmonicMeanOverTheWholeRangeOfDoubles) {
     EXPECT_NEAR(edgeStiffness(k, 0.5 * k) / (k / 3.0 * 2.0), 1.0, 1e-15) << k;
   }
   EXPECT_NEAR(edgeStiffness(1e308, 1.0), 2.0, 1e-15);
+  const double largest = std::numeric_limits<double>::max();
+  EXPECT_EQ(edgeStiffness(largest, largest), largest);  // 2 / (2 / max) gave inf
+  EXPECT_EQ(edgeStiffness(1.2e308, 1.2e308), 1.2e308);
 }
 
 TEST(Properties, LabelsAreWordsWithUnitsAndNamesStayIdentifiers) {

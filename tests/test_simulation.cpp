@@ -1701,7 +1701,9 @@ TEST(Substeps, TheSplitAfterEditsDependsOnThePropertiesAloneAndHoldsTheSchemesLi
   Simulation near(model, settingsFor(model, 0.95));
   EXPECT_EQ(edited(near, 1.0001), 1);
   EXPECT_TRUE(near.takeWarnings().empty());
-  EXPECT_EQ(edited(near, 1.2), 2);  // 1.04 T_max: past the limit
+  EXPECT_EQ(edited(near, 1.2), 2);                      // 1.04 T_max: past the limit
+  Simulation nearer(model, settingsFor(model, 0.995));  // within the limit, past 0.99 of it
+  EXPECT_EQ(edited(nearer, 1.0001), 1);
 
   Simulation damped(model, paper);
   State start = State::atRest(model.mesh);

@@ -5,6 +5,8 @@
 #include <filesystem>
 #include <iostream>
 #include <sstream>
+#include <string>
+#include <vector>
 
 #include "commands.h"
 #include "model_options.h"
@@ -109,12 +111,25 @@ int runInfo(const ModelOptions& options, bool json) {
             << "  angle springs " << model.angles.size() << "\n"
             << "  bounding box [" << box.min.transpose() << "] .. [" << box.max.transpose()
             << "]\n";
-  if (loaded.report.degenerateFacesDropped || loaded.report.verticesWelded ||
-      loaded.report.facesReversed)
-    std::cout << "  import: " << loaded.report.verticesWelded << " vertices welded, "
-              << loaded.report.degenerateFacesDropped << " degenerate faces dropped, "
-              << loaded.report.facesReversed
-              << " faces reversed to wind as their neighbours (a closed sheet outward)\n";
+  // What the import changed, the parts that are not zero. The merged copies are every vertex
+  // that came to a position another had: OBJ and STL readers give each face corner its own,
+  // so there they count the shared corners of a clean file too (a QA pass read "400 vertices
+  // welded" as 400 duplicates in the file).
+  {
+    std::vector<std::string> parts;
+    if (loaded.report.verticesWelded)
+      parts.push_back(std::to_string(loaded.report.verticesWelded) +
+                      " vertex copies merged by position (the reader's per-corner copies too)");
+    if (loaded.report.degenerateFacesDropped)
+      parts.push_back(std::to_string(loaded.report.degenerateFacesDropped) +
+                      " degenerate faces dropped");
+    if (loaded.report.facesReversed)
+      parts.push_back(std::to_string(loaded.report.facesReversed) +
+                      " faces reversed to wind as their neighbours (a closed sheet outward)");
+    for (size_t k = 0; k < parts.size(); ++k)
+      std::cout << (k == 0 ? "  import: " : ", ") << parts[k]
+                << (k + 1 == parts.size() ? "\n" : "");
+  }
   if (loaded.report.up != io::UpAxis::PlusZ) {
     std::string extension = std::filesystem::path(loaded.source).extension().string();
     for (char& c : extension) c = static_cast<char>(std::tolower(static_cast<unsigned char>(c)));

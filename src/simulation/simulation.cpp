@@ -486,10 +486,12 @@ void Simulation::setSubsteps(int n) {
 void Simulation::notePeriodShare() {
   const double tMax = criticalPeriod(stepper_->system());
   periodShare_ = std::isfinite(tMax) && tMax > 0.0 ? cyclePeriod_ / tMax : 0.0;
-  // A period set past the Gershgorin bound (the tight limit allowed it, or --allow-unstable)
-  // keeps its share: the splits do not hold it to the bound.
-  startedBeyondBound_ =
-      cyclePeriod_ > 0.99 * gershgorinStablePeriodLimit(stepper_->scheme(), stepper_->system());
+  // Against the limit when the period was set: a period past the Gershgorin bound (the tight
+  // limit allowed it, or --allow-unstable) keeps its share, and one set near it (past
+  // kStiffenedTrigger) is split only once past the bound itself.
+  const double limit = gershgorinStablePeriodLimit(stepper_->scheme(), stepper_->system());
+  startedBeyondBound_ = beyondStableLimit(cyclePeriod_, limit);
+  startedNearBound_ = cyclePeriod_ > kStiffenedTrigger * limit;
   stableSubsteps_ = 1;
   stiffnessEdited_ = false;
 }
@@ -500,22 +502,32 @@ void Simulation::chooseStableSubsteps() {
   const SystemMatrices& system = stepper_->system();
   const Scheme scheme = stepper_->scheme();
   const double limit = gershgorinStablePeriodLimit(scheme, system);
-  if (!std::isfinite(limit)) {  // exact and implicit Euler are stable at any period
+  // Exact and implicit Euler are stable at any period; a fully rigid model takes no elastic
+  // step.
+  if (!std::isfinite(limit) || allRigid_) {
     stableSubsteps_ = 1;
     return;
   }
   const double tMax = criticalPeriod(system);
   const double shareStep = std::isfinite(tMax) ? periodShare_ * tMax : 0.0;
+  // The paper scheme's damping limit 1 / gamma (equation 4's 1 - gamma T > 0) is exact, not
+  // a bound: no share set past the spring bound is let past it.
+  const VectorX& gamma = system.dampingCoefficient();
+  const double dampingLimit = scheme == Scheme::Paper && gamma.size() > 0 && gamma.maxCoeff() > 0.0
+                                  ? 1.0 / gamma.maxCoeff()
+                                  : std::numeric_limits<double>::infinity();
   // The steps of a split cycle: as long as the period's share of T_max when it was set, or
   // kStiffenedStepShare, within the limit (the paper scheme's may be its damping's, with
   // T_max infinite or unchanged).
   double longest = std::max(shareStep, std::min(kStiffenedStepShare * tMax, 0.99 * limit));
   if (!startedBeyondBound_) longest = std::min(longest, 0.99 * limit);
-  // Split only once the step comes near the limit (a relax that stiffens the model by 1 %
-  // must not halve a run's speed), or, for a run set near it already, nearer still.
-  const double trigger = startedBeyondBound_                     ? longest
-                         : shareStep > kStiffenedTrigger * limit ? 0.99 * limit
-                                                                 : kStiffenedTrigger * limit;
+  longest = std::min(longest, 0.99 * dampingLimit);
+  // Split only once the cycle comes near the limit (a relax that stiffens the model by 1 %
+  // must not halve a run's speed), or, for a run set near it already, past it.
+  double trigger = startedBeyondBound_ ? longest
+                   : startedNearBound_ ? limit * (1.0 - 1e-9)
+                                       : kStiffenedTrigger * limit;
+  trigger = std::min(trigger, dampingLimit * (1.0 - 1e-9));
   // A function of the properties alone, not of the splits before: a run resumed after
   // several edits (--start-time, which applies them at once) splits as the whole run did.
   int n = 1;

@@ -131,7 +131,7 @@ inline double edgeStiffness(double kappaI, double kappaJ) {
   // springs' energy is not finite" at rest): the same mean in a form that does not, taken
   // only there so that every ordinary value keeps its bits.
   if (std::isfinite(mean) || !std::isfinite(kappaI) || !std::isfinite(kappaJ)) return mean;
-  return 2.0 / (1.0 / kappaI + 1.0 / kappaJ);
+  return kappaI / (0.5 * kappaI + 0.5 * kappaJ) * kappaJ;  // a ratio of at most 2 first
 }
 
 /// Section 4.3: sigma_i = min(kappa_0 / kappa_i, 1); the elastic share of vertex i's force.

@@ -74,8 +74,8 @@ enum class RigidFrame {
 inline constexpr int kMaxSubsteps = 64;
 /// An edit that stiffens the model lowers T_max (equation 5) under a cycle whose period was
 /// set as a share of the old one. Once the cycle of a conditionally stable scheme (default,
-/// paper, symplectic Euler) passes kStiffenedTrigger of the scheme's Gershgorin limit (0.99
-/// of it for a period set beyond the trigger already), each cycle is taken in 2, 4, ... up
+/// paper, symplectic Euler) passes kStiffenedTrigger of the scheme's Gershgorin limit (the
+/// limit itself for a period set beyond the trigger already), each cycle is taken in 2, 4, ... up
 /// to kMaxSubsteps steps, the fewest that bring every step back within the larger of the
 /// share of T_max the period was set at and kStiffenedStepShare, and within 0.99 of the
 /// limit. The count is a function of the properties (not of the splits before), so a run
@@ -297,7 +297,9 @@ class Simulation {
   // the fewest steps a cycle takes for it since, and whether an edit came since they were
   // counted.
   double periodShare_ = 0.0;
-  bool startedBeyondBound_ = false;  // the period was set past 0.99 of the Gershgorin limit
+  // The period was set at or past the Gershgorin limit, or past kStiffenedTrigger of it.
+  bool startedBeyondBound_ = false;
+  bool startedNearBound_ = false;
   int stableSubsteps_ = 1;
   bool stiffnessEdited_ = false;
   int retakes_ = 0;
