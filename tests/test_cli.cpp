@@ -833,8 +833,10 @@ TEST_F(Cli, AClosedStandardOutputIsAnErrorNotADeathBySignal) {
   // `zsculpt info M | head -1`: the reader gone, a write killed the process by SIGPIPE
   // (exit 141, nothing said; a QA pass). Standard output here is a pipe whose reader is
   // closed before the start, so every write fails.
-  for (const std::string args : {"info builtin:torus --json", "simulate builtin:torus --steps 3",
-                                 "simulate builtin:torus --steps 3 --csv /dev/stdout"}) {
+  // (bench's rows, shown as they come, end the run at the first: checkShown.)
+  for (const std::string args :
+       {"info builtin:torus --json", "simulate builtin:torus --steps 3",
+        "simulate builtin:torus --steps 3 --csv /dev/stdout", "bench --scaling --quick"}) {
     int fds[2];
     ASSERT_EQ(::pipe(fds), 0);
     ::close(fds[0]);

@@ -9,9 +9,11 @@
 // simulate 10 s at a trajectory error of 1e-3.
 
 #include <algorithm>
+#include <cerrno>
 #include <chrono>
 #include <cmath>
 #include <cstdlib>
+#include <cstring>
 #include <fstream>
 #include <functional>
 #include <iomanip>
@@ -35,6 +37,15 @@
 namespace zsculpt::cli {
 
 namespace {
+
+// After a row shown as it comes: a reader that went away (`bench --scaling | head -3`) ends
+// the run here, not minutes later (SIGPIPE is ignored: cli.cpp).
+void checkShown() {
+  if (std::cout.good()) return;
+  const int error = errno;
+  throw IOError(std::string("standard output: ") +
+                (error != 0 ? std::strerror(error) : "the write failed"));
+}
 
 using Clock = std::chrono::steady_clock;
 
@@ -309,6 +320,7 @@ void printModelRow(const ModelBench& b) {
     std::cout << "   (1 thread " << std::setprecision(4) << b.stepSerial << " s, x"
               << std::setprecision(3) << b.stepSerial / b.step << ")";
   std::cout << std::endl;  // the scaling series runs for minutes: each row as it comes
+  checkShown();
 }
 
 // ---- --table1 ---------------------------------------------------------------------------------
@@ -587,6 +599,7 @@ std::vector<PeerResult> runPeersOn(const std::string& name, const Model& model, 
               << " s, its own error estimate " << std::setprecision(3) << referenceError
               << (referenceError <= target / 10.0 ? "" : " (NOT converged within the budget)")
               << std::endl;
+  checkShown();
   std::vector<PeerResult> results;
   for (Scheme scheme :
        {Scheme::Default, Scheme::Paper, Scheme::SymplecticEuler, Scheme::ImplicitEuler}) {
@@ -679,6 +692,7 @@ std::vector<PeerResult> runPeersOn(const std::string& name, const Model& model, 
                   << r.stableStepSeconds << " s)";
       if (!r.note.empty()) std::cout << "  [" << r.note << "]";
       std::cout << std::endl;  // a long run: show each row as it comes
+      checkShown();
     }
   }
   return results;
