@@ -289,6 +289,29 @@ TEST(Session, ATimeStepChangeKeepsTheConstraintsAndWhatTheyRecorded) {
   EXPECT_EQ(session.pins().size(), 3u);
 }
 
+TEST(Session, DampingThatLowersThePaperSchemesLimitSplitsTheCycleAndThePanelSaysWhy) {
+  // The paper scheme's limit is also 1 / gamma (equation 4). Damping painted up leaves T_max,
+  // so the period the window keeps as a share of it stays, and the cycle is split instead
+  // (Simulation::chooseStableSubsteps); the panel says why ("near the stable limit after an
+  // edit"), not "fast motion".
+  Session session(gridSetup(6));
+  session.apply(SetTimeStep{Scheme::Paper, session.simulation().period()});
+  session.apply(Play{});
+  session.advance();
+  Snapshot s;
+  session.fill(s, Property::Stiffness);
+  ASSERT_EQ(s.substeps, 1);
+  editing::Brush damping;
+  damping.property = Property::Damping;
+  damping.value = 40.0;  // gamma = 40 / (2 x 0.2) = 100 /s: 1 / gamma = 0.01 s
+  session.apply(Edit{editing::GlobalEdit{damping}});
+  for (int k = 0; k < 20; ++k) ASSERT_NE(session.advance(), Session::Outcome::Diverged) << k;
+  session.fill(s, Property::Stiffness);
+  EXPECT_GT(s.substeps, 1);
+  EXPECT_EQ(s.stableSubsteps, s.substeps);
+  EXPECT_LE(s.period / s.substeps, 0.99 * 0.01);
+}
+
 TEST(Session, TheStableLimitShownIsTheOneTheCommandLineGives) {
   // The panel showed Gershgorin's bound (T_max for the default scheme) where `zsculpt
   // simulate` refuses a step only above the tight limit (the largest eigenvalue): a period

@@ -291,7 +291,10 @@ void Window::simulationPanel(const Snapshot& s) {
                        "T / T_max %.3f may be above the stable limit %s",
                        static_cast<double>(dtRatio_), seconds(s.stableLimit).c_str());
   if (s.substeps > 1 && s.running)
-    ImGui::Text("fast motion: each cycle taken in %d steps of T / %d", s.substeps, s.substeps);
+    ImGui::Text(s.stableSubsteps >= s.substeps
+                    ? "near the stable limit after an edit: each cycle taken in %d steps of T / %d"
+                    : "fast motion: each cycle taken in %d steps of T / %d",
+                s.substeps, s.substeps);
 
   const bool dampingPainted = s.maxDamping > s.minDamping;
   ImGui::SliderFloat("damping", &damping_, 0.0f, 1.0f,

@@ -613,6 +613,7 @@ void Session::fill(Snapshot& out, Property scalarProperty) {
   out.stableLimit = stableLimit_;
   out.stableLimitTight = stableLimitTight_;
   out.substeps = sim_->substeps();
+  out.stableSubsteps = sim_->stableSubsteps();
   out.gravity = model.properties.gravity;
   out.stiffnessCap = model.properties.stiffnessCap;
   const VectorX& damping = model.properties.damping;

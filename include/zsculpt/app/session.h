@@ -97,6 +97,9 @@ struct Snapshot {
   /// above the bound after an edit, and may still be stable.
   bool stableLimitTight = true;
   int substeps = 1;  ///< steps in the last cycle (split when the motion is fast)
+  /// The fewest steps a cycle takes since an edit brought the stable limit near T
+  /// (Simulation::stableSubsteps); 1 otherwise.
+  int stableSubsteps = 1;
   Vec3 gravity = Vec3::Zero();
   double stiffnessCap = 0.0;
   double meanDamping = 0.0;

@@ -138,6 +138,9 @@ class Simulation {
   /// Steps per cycle at present: 1, 2, 4, ... (SimulationSettings::substepStrain, and
   /// kStiffenedStepShare after an edit that stiffened the model).
   [[nodiscard]] int substeps() const { return substeps_; }
+  /// The fewest steps a cycle takes since an edit brought the scheme's stable limit near the
+  /// period (kStiffenedTrigger), 1 otherwise; counted at the cycle after the edit.
+  [[nodiscard]] int stableSubsteps() const { return stableSubsteps_; }
   /// How many times the last cycle was taken again with more steps (kRetakeFactor).
   [[nodiscard]] int retakes() const { return retakes_; }
   [[nodiscard]] const SimulationSettings& settings() const { return settings_; }
