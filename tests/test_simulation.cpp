@@ -1704,6 +1704,12 @@ TEST(Substeps, TheSplitAfterEditsDependsOnThePropertiesAloneAndHoldsTheSchemesLi
   EXPECT_EQ(edited(near, 1.2), 2);                      // 1.04 T_max: past the limit
   Simulation nearer(model, settingsFor(model, 0.995));  // within the limit, past 0.99 of it
   EXPECT_EQ(edited(nearer, 1.0001), 1);
+  // A fully rigid model takes no elastic step: nothing to split (and, for the paper scheme,
+  // no stepper to build again for nothing).
+  Model rigid = model;
+  rigid.properties.rigidity.setConstant(1.0);
+  Simulation body(rigid, paper);
+  EXPECT_EQ(edited(body, 100.0), 1);
 
   Simulation damped(model, paper);
   State start = State::atRest(model.mesh);

@@ -112,12 +112,8 @@ int runSimulate(const SimulateOptions& options) {
 
   // A relative drift needs an energy to be relative to: a model at rest whose angle springs
   // hold it only to rounding has 1e-28 J, and its "drift" was 25 (a ratio of noise). Below a
-  // millionth of a millionth of the springs' energy scale (every edge stretched by its own
-  // length) the drift is undefined.
-  const Model& model = sim.model();
-  const double edge = model.mesh.numEdges() > 0 ? model.mesh.meanEdgeLength() : 0.0;
-  const double energyScale = 0.5 * model.properties.stiffness.cwiseAbs().maxCoeff() * edge * edge *
-                             static_cast<double>(model.mesh.numEdges());
+  // millionth of a millionth of the springs' energy scale the drift is undefined.
+  const double energyScale = springEnergyScale(sim.model());
   const double firstMean = firstCount ? firstSum / firstCount : 0.0;
   const double energyDrift =
       (firstCount && lastCount && !diverged && std::abs(firstMean) > 1e-12 * energyScale)

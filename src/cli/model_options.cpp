@@ -716,6 +716,19 @@ void RunOptions::prepare(const LoadedModel& loaded, Simulation& sim) const {
                             "times the masses and heights is beyond what a double holds");
 }
 
+double springEnergyScale(const Model& model) {
+  const PhysicalProperties& p = model.properties;
+  const Index edges = model.mesh.numEdges();
+  const double edge = edges > 0 ? model.mesh.meanEdgeLength() : 0.0;
+  const double radial =
+      edges > 0 ? 0.5 * p.stiffness.cwiseAbs().maxCoeff() * edge * edge * static_cast<double>(edges)
+                : 0.0;
+  const double angular = model.angles.size() > 0 ? 0.5 * p.angularStiffness.cwiseAbs().maxCoeff() *
+                                                       static_cast<double>(model.angles.size())
+                                                 : 0.0;
+  return radial + angular;
+}
+
 std::string jsonNumber(double value) {
   if (!std::isfinite(value)) return "null";
   std::ostringstream out;

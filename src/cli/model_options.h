@@ -135,6 +135,11 @@ Scheme schemeOption(const std::string& name);
 /// "0.5 T_max", the period as a share of T_max; "T_max infinite" when nothing is stiff.
 std::string shareOfTMax(double period, double tMax);
 
+/// The springs' energy with every edge stretched by its own length and every angle bent by a
+/// radian (J): the scale below which an energy is rounding (1e-12 of it: a model at its own
+/// rest shape holds about 1e-28 J).
+double springEnergyScale(const Model& model);
+
 /// A JSON number that stays valid JSON for infinities (as null).
 std::string jsonNumber(double value);
 /// A JSON string, quotes included: quotes, backslashes and control characters escaped, so a

@@ -284,18 +284,11 @@ RenderJobResult runRenderJob(const RenderJobOptions& o) {
                              c.value != sim.state().position.row(c.vertex).transpose();
                     });
     // Springs away from their rest (rest lengths scaled, rest lengths or angles given by
-    // the scene) move the model too: rendered with this warning until a QA pass. Rounding
-    // holds a model at its own rest shape to 1e-28 J or so; this scale is the springs' energy
-    // with every edge stretched by its own length.
+    // the scene) move the model too: rendered with this warning until a QA pass.
     const Model& model = sim.model();
-    const double edge = model.mesh.numEdges() > 0 ? model.mesh.meanEdgeLength() : 0.0;
-    const double scale = 0.5 *
-                         std::max(model.properties.stiffness.cwiseAbs().maxCoeff(),
-                                  model.properties.angularStiffness.cwiseAbs().maxCoeff()) *
-                         std::max(edge * edge, 1.0) * static_cast<double>(model.mesh.numEdges());
     const Diagnostics start = sim.diagnostics();
     const bool stressed =
-        start.potential.radial + start.potential.angular > 1e-12 * std::max(scale, 1e-300);
+        start.potential.radial + start.potential.angular > 1e-12 * springEnergyScale(model);
     nothingActs = atRest && !stressed && sim.forces().empty() && sim.torques().empty() &&
                   model.properties.gravity.isZero(0.0) && edits.schedule.size() == 0 && !heldAway;
   }

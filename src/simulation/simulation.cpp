@@ -170,7 +170,7 @@ void Simulation::propertiesChanged(std::span<const Index> vertices) {
   stepper_->propertiesChanged(vertices);
   energyAtState_ = false;
   endRateValid_ = false;
-  stiffnessEdited_ = true;
+  propertiesEdited_ = true;
   const bool wasActive = rigidActive_;
   updateRigidity();
   if (rigidActive_)
@@ -184,7 +184,7 @@ void Simulation::allPropertiesChanged() {
   stepper_->rebuild();
   energyAtState_ = false;
   endRateValid_ = false;
-  stiffnessEdited_ = true;
+  propertiesEdited_ = true;
   const bool wasActive = rigidActive_;
   updateRigidity();
   if (rigidActive_)
@@ -493,12 +493,12 @@ void Simulation::notePeriodShare() {
   startedBeyondBound_ = beyondStableLimit(cyclePeriod_, limit);
   startedNearBound_ = cyclePeriod_ > kStiffenedTrigger * limit;
   stableSubsteps_ = 1;
-  stiffnessEdited_ = false;
+  propertiesEdited_ = false;
 }
 
 void Simulation::chooseStableSubsteps() {
-  if (!stiffnessEdited_) return;
-  stiffnessEdited_ = false;
+  if (!propertiesEdited_) return;
+  propertiesEdited_ = false;
   const SystemMatrices& system = stepper_->system();
   const Scheme scheme = stepper_->scheme();
   const double limit = gershgorinStablePeriodLimit(scheme, system);
@@ -512,10 +512,8 @@ void Simulation::chooseStableSubsteps() {
   const double shareStep = std::isfinite(tMax) ? periodShare_ * tMax : 0.0;
   // The paper scheme's damping limit 1 / gamma (equation 4's 1 - gamma T > 0) is exact, not
   // a bound: no share set past the spring bound is let past it.
-  const VectorX& gamma = system.dampingCoefficient();
-  const double dampingLimit = scheme == Scheme::Paper && gamma.size() > 0 && gamma.maxCoeff() > 0.0
-                                  ? 1.0 / gamma.maxCoeff()
-                                  : std::numeric_limits<double>::infinity();
+  // (stablePeriodLimit without springs: the paper scheme's 1 / gamma, infinite for the others.)
+  const double dampingLimit = stablePeriodLimit(scheme, system, 0.0);
   // The steps of a split cycle: as long as the period's share of T_max when it was set, or
   // kStiffenedStepShare, within the limit (the paper scheme's may be its damping's, with
   // T_max infinite or unchanged).

@@ -263,7 +263,7 @@ class Simulation {
   [[nodiscard]] double strainRate2() const;
   void setSubsteps(int n);
   // kStiffenedStepShare: periodShare_ from the period just set (a new stepper), and
-  // stableSubsteps_ after edits (stiffnessEdited_), said when it rises.
+  // stableSubsteps_ after edits (propertiesEdited_), said when it rises.
   void notePeriodShare();
   void chooseStableSubsteps();
   // A new constraint support (constraints added, moved or removed) set up.
@@ -296,15 +296,15 @@ class Simulation {
   std::unique_ptr<Stepper> stepper_;
   double cyclePeriod_ = 0.0;
   int substeps_ = 1;  // the stepper's period is cyclePeriod_ / substeps_
-  // kStiffenedStepShare: the cycle's period over T_max when it was set (0: T_max infinite),
-  // the fewest steps a cycle takes for it since, and whether an edit came since they were
-  // counted.
+  // kStiffenedStepShare, as the period was set: its share of T_max (0: T_max infinite),
+  // whether it was at or past the Gershgorin limit, or past kStiffenedTrigger of it.
   double periodShare_ = 0.0;
-  // The period was set at or past the Gershgorin limit, or past kStiffenedTrigger of it.
   bool startedBeyondBound_ = false;
   bool startedNearBound_ = false;
+  // The fewest steps a cycle takes since the last edit, and whether an edit came since they
+  // were counted (chooseStableSubsteps, at the next cycle).
   int stableSubsteps_ = 1;
-  bool stiffnessEdited_ = false;
+  bool propertiesEdited_ = false;
   int retakes_ = 0;
   // strainRate2() at the end of the last cycle, for the next one's chooseSubsteps (cleared by
   // anything that changes the velocities or the rest lengths between cycles).
