@@ -862,21 +862,28 @@ TEST_F(Cli, AClosedStandardOutputIsAnErrorNotADeathBySignal) {
   }
 }
 
-TEST_F(Cli, SubdivideSaysWhenLooseEdgesAreNotInTheSurface) {
-  // A triangle with a segment beside it: the surface is the triangle's, and the segment's
-  // vertices were left out while max_interpolation_error said 0 (a QA pass).
+TEST_F(Cli, SubdivideKeepsLooseEdgesBesideTheSurfaceAsCurves) {
+  // A triangle with a segment beside it: the segment was left out of the file (and of the
+  // window's and render's drawing) while max_interpolation_error said 0 (a QA pass). It is
+  // a curve of the refined mesh now, its ends kept.
   std::ofstream(path("hair.obj"))
       << "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 5 5 5\nv 6 5 5\nf 1 2 3\nl 4 5\n";
   const Result r =
       run("subdivide " + path("hair.obj") + " --levels 1 --json --out " + path("hair_1.obj"));
   ASSERT_EQ(r.status, 0) << r.err;
-  EXPECT_NE(r.err.find("hair.obj: 1 edge bounds no face (a curve beside the surface): the "
-                       "subdivided surface is of the faces alone"),
-            std::string::npos)
-      << r.err;
-  const Result plain = run("subdivide builtin:torus --levels 1 --out " + path("torus_1.obj"));
-  ASSERT_EQ(plain.status, 0) << plain.err;
-  EXPECT_EQ(plain.err, "");
+  EXPECT_EQ(r.err, "");
+  const auto j = nlohmann::json::parse(r.out);
+  EXPECT_EQ(j["max_interpolation_error"].get<double>(), 0.0) << r.out;
+  EXPECT_EQ(j["faces"].get<int>(), 7) << r.out;  // the triangle's F-face, 3 E- and 3 V-faces
+  // The file: the segment's two Chaikin points joined to each other and to its two ends.
+  std::ifstream in(path("hair_1.obj"));
+  int lines = 0, segmentEnds = 0;
+  for (std::string line; std::getline(in, line);) {
+    lines += line.rfind("l ", 0) == 0 ? 1 : 0;
+    segmentEnds += line == "v 5 5 5" || line == "v 6 5 5" ? 1 : 0;
+  }
+  EXPECT_EQ(lines, 3);
+  EXPECT_EQ(segmentEnds, 2);
 }
 
 TEST_F(Cli, AScenesErrorsNameTheJsonPath) {

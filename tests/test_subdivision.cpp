@@ -78,6 +78,27 @@ Mesh makeDoubleSidedFins() {
   return Mesh(fins.positions(), faces);
 }
 
+/// A flat 5 x 5 grid (vertices 0..24, z = 0) with loose edges: a two-segment hair up from
+/// the interior vertex 12 (25, 26), one out from the border vertex 2 (27), and a segment on
+/// its own (28-29). With `hairs` false, the grid alone.
+Mesh makeSheetWithHairs(bool hairs = true) {
+  const Mesh grid = makeGrid(5);
+  Points p(hairs ? 30 : 25, 3);
+  p.topRows(25) = grid.positions();
+  p.col(2).head(25).setZero();
+  if (hairs) {
+    const Vec3 c = p.row(12).transpose(), b = p.row(2).transpose();
+    p.row(25) = (c + Vec3(0.1, 0.0, 0.5)).transpose();
+    p.row(26) = (c + Vec3(0.3, 0.1, 1.0)).transpose();
+    p.row(27) = (b + Vec3(0.0, -0.5, 0.3)).transpose();
+    p.row(28) << 3.0, 3.0, 1.0;
+    p.row(29) << 3.5, 3.0, 1.2;
+  }
+  std::vector<std::array<Index, 2>> loose;
+  if (hairs) loose = {{12, 25}, {25, 26}, {2, 27}, {28, 29}};
+  return Mesh(p, facesOf(grid), loose);
+}
+
 VectorX randomMasses(Index n, unsigned seed) {
   std::mt19937 rng(seed);
   std::uniform_real_distribution<double> uniform(0.2, 3.0);
@@ -502,16 +523,100 @@ TEST(Robustness, ZeroLevelsIsTheControlMesh) {
   EXPECT_EQ(stencil.refinedFaces().indices, mesh.faces().indices);
 }
 
+// ---- faces and loose edges ---------------------------------------------------------------
+
+TEST(Mixed, LooseEdgesBesideASurfaceAreRefinedAsCurvesThatStartOnIt) {
+  // A sheet with hairs (a mesh of faces and loose edges): the loose edges were left out of
+  // the refined mesh, so neither the window nor `render` drew them (a QA pass).
+  const Mesh mesh = makeSheetWithHairs();
+  const Mesh sheet = makeSheetWithHairs(false);
+  const Points& control = mesh.positions();
+  for (int levels : {1, 2, 3}) {
+    SCOPED_TRACE("levels=" + std::to_string(levels));
+    const SubdivisionStencil stencil(mesh, options(levels, true));
+    const Points refined = refine(stencil, control);
+    // The curves' edges are the last of refinedEdges and bound no refined face, and they
+    // make three polylines (the hair inside, the hair on the border, the lone segment),
+    // each at least 2^levels edges long.
+    const Index curveEdges = stencil.numRefinedCurveEdges();
+    std::map<Index, int> valence;
+    for (auto e = stencil.refinedEdges().end() - curveEdges; e != stencil.refinedEdges().end(); ++e)
+      for (Index r : *e) ++valence[r];
+    int ends = 0;
+    for (const auto& [vertex, count] : valence) {
+      EXPECT_TRUE(count == 1 || count == 2) << vertex << ": " << count;
+      ends += count == 1 ? 1 : 0;
+    }
+    EXPECT_EQ(ends, 6);
+    EXPECT_EQ(curveEdges, static_cast<Index>(valence.size()) - 3);
+    EXPECT_GE(curveEdges, 3 * (Index{1} << levels));
+    std::set<std::array<Index, 2>> faceEdges;
+    const CsrIndex& faces = stencil.refinedFaces();
+    for (Index f = 0; f < faces.rows(); ++f) {
+      const auto row = faces.row(f);
+      for (size_t k = 0; k < row.size(); ++k) {
+        const Index a = row[k], b = row[(k + 1) % row.size()];
+        faceEdges.insert({std::min(a, b), std::max(a, b)});
+      }
+    }
+    const auto& edges = stencil.refinedEdges();
+    ASSERT_EQ(static_cast<size_t>(curveEdges) + faceEdges.size(), edges.size());
+    for (auto e = edges.end() - curveEdges; e != edges.end(); ++e)
+      EXPECT_EQ(faceEdges.count(*e), 0u) << (*e)[0] << "-" << (*e)[1];
+    // Every control vertex is interpolated, the hairs' included; the interior vertex the
+    // hair leaves by its V-face, as without the hair.
+    EXPECT_LT(maxInterpolationError(stencil, control, refined), 1e-12);
+    EXPECT_EQ(stencil.anchors()[12].kind, AnchorKind::Face);
+    // The curves end where they end: the hairs' tips and the lone segment's ends exactly.
+    for (Index v : {Index{26}, Index{27}, Index{28}, Index{29}})
+      EXPECT_EQ(refined.row(stencil.controlToRefined()[v]), control.row(v)) << v;
+    // The hair inside starts on the vertex it leaves, which the surface passes through.
+    bool startsOnTheSurface = false;
+    for (auto e = edges.end() - curveEdges; e != edges.end(); ++e)
+      for (Index r : *e) startsOnTheSurface |= refined.row(r) == control.row(12);
+    EXPECT_TRUE(startsOnTheSurface);
+    // The exported mesh keeps the curves: as many loose edges as the stencil has.
+    const Mesh withHairs = subdivide(mesh, options(levels, true));
+    Index wires = 0;
+    for (Index e = 0; e < withHairs.numEdges(); ++e) wires += withHairs.isWireEdge(e) ? 1 : 0;
+    EXPECT_EQ(wires, curveEdges);
+    EXPECT_EQ(withHairs.numFaces(), faces.rows());
+  }
+}
+
+TEST(Mixed, AHairInsideTheSurfaceLeavesTheSurfaceAsItWas) {
+  // Geometric masks: the refined faces of the sheet with a hair inside (from vertex 12) are
+  // the sheet's own, corner by corner, to the bit (the curves' points are numbered among
+  // the refined vertices, so the indices differ).
+  const Mesh sheet = makeSheetWithHairs(false);
+  Points p(27, 3);
+  p.topRows(25) = sheet.positions();
+  p.row(25) << 2.1, 2.0, 0.5;
+  p.row(26) << 2.3, 2.1, 1.0;
+  const Mesh hair(p, facesOf(sheet), {{12, 25}, {25, 26}});
+  for (int levels : {1, 2, 3}) {
+    const SubdivisionStencil a(sheet, options(levels, true));
+    const SubdivisionStencil b(hair, options(levels, true));
+    const Points ra = refine(a, sheet.positions());
+    const Points rb = refine(b, hair.positions());
+    ASSERT_EQ(a.refinedFaces().offsets, b.refinedFaces().offsets);
+    for (size_t k = 0; k < a.refinedFaces().indices.size(); ++k)
+      EXPECT_EQ(ra.row(a.refinedFaces().indices[k]), rb.row(b.refinedFaces().indices[k])) << k;
+  }
+}
+
 // ---- mass and momentum -----------------------------------------------------------------------
 
 TEST(Conservation, MassAndLinearMomentumAreCarriedExactly) {
   const std::vector<const char*> names = {
-      "builtin:torus", "builtin:dodecahedron", "builtin:grid:7",  "builtin:helix:20",
-      "builtin:fins",  "builtin:lattice:3",    "cube, valence 2", "double-sided fins"};
+      "builtin:torus",    "builtin:dodecahedron", "builtin:grid:7",
+      "builtin:helix:20", "builtin:fins",         "builtin:lattice:3",
+      "cube, valence 2",  "double-sided fins",    "sheet with hairs"};
   unsigned seed = 1;
   for (const std::string name : names) {
     const Mesh mesh = jittered(name == "cube, valence 2"     ? makeCubeWithEdgeVertex()
                                : name == "double-sided fins" ? makeDoubleSidedFins()
+                               : name == "sheet with hairs"  ? makeSheetWithHairs()
                                                              : makeBuiltin(name),
                                0.05, seed);
     for (bool interpolate : {true, false}) {
@@ -590,7 +695,8 @@ TEST(Stencil, ProductEqualsStepByStepSubdivision) {
                                     makeFins(),
                                     makeLattice(3),
                                     makeCubeWithEdgeVertex(),
-                                    makeDoubleSidedFins()};
+                                    makeDoubleSidedFins(),
+                                    jittered(makeSheetWithHairs(), 0.05, 46)};
   for (const Mesh& mesh : meshes) {
     for (bool interpolate : {true, false}) {
       const VectorX controlMass = randomMasses(mesh.numVertices(), 44);
@@ -613,10 +719,12 @@ TEST(Stencil, ProductEqualsStepByStepSubdivision) {
             faces.emplace_back(one.refinedFaces().row(f).begin(), one.refinedFaces().row(f).end());
           // The next level's topology; its positions travel separately (placeholders here:
           // a double-sided sheet's refined front and back points coincide, which a Mesh
-          // refuses on its edges).
-          const Points placeholder = randomPoints(next.rows(), 45);
-          level =
-              faces.empty() ? Mesh(placeholder, {}, one.refinedEdges()) : Mesh(placeholder, faces);
+          // refuses on its edges). Loose edges are judged curves or a solid's inner edges
+          // by where they are, so a mesh with curves keeps its refined positions.
+          const auto& edges = one.refinedEdges();
+          const Index curves = one.numRefinedCurveEdges();
+          level = Mesh(curves > 0 && faces.size() > 0 ? next : randomPoints(next.rows(), 45), faces,
+                       {edges.end() - curves, edges.end()});
           positions = std::move(next);
         }
         ASSERT_EQ(positions.rows(), composed.rows());

@@ -38,18 +38,6 @@ int runSubdivide(const SubdivideOptions& options) {
   sub.interpolate = !options.classic;
   sub.mass = &loaded.model.properties.mass;
   const Mesh& control = loaded.model.mesh;
-  // A mesh of faces and loose edges (a sheet with a hair): the surface is the faces', and the
-  // edges that bound no face are not in it, nor measured by max_interpolation_error. Said,
-  // not dropped silently (a QA pass).
-  if (control.numFaces() > 0) {
-    Index wires = 0;
-    for (Index e = 0; e < control.numEdges(); ++e) wires += control.isWireEdge(e) ? 1 : 0;
-    if (wires > 0)
-      warn(loaded.source + ": " + std::to_string(wires) +
-           (wires == 1 ? " edge bounds" : " edges bound") +
-           " no face (a curve beside the surface): the subdivided surface is of the faces "
-           "alone, and max_interpolation_error measures their vertices only");
-  }
   const SubdivisionStencil stencil = stencilForLevels(control, sub);
   Points refined(stencil.numRefinedVertices(), 3);
   stencil.apply(control.positions(), refined);

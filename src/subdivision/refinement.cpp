@@ -174,11 +174,13 @@ LevelStep refineLevel(const LevelTopology& topology, const VectorX* mass, bool i
         cornerFeature[c] = cornerFeature[first];  // `first` < c: already numbered
       }
     }
-  } else {
-    step.featureEdges.reserve(topology.curveEdges.size());
-    for (const auto& [a, b] : topology.curveEdges)
-      step.featureEdges.push_back({std::min(a, b), std::max(a, b)});
   }
+  // Curve edges (a curve, or the loose edges beside a surface: a sheet with a hair) follow
+  // the same curve rule, numbered after the faces' feature edges.
+  const Index nSurfaceFeatures = static_cast<Index>(step.featureEdges.size());
+  step.featureEdges.reserve(step.featureEdges.size() + topology.curveEdges.size());
+  for (const auto& [a, b] : topology.curveEdges)
+    step.featureEdges.push_back({std::min(a, b), std::max(a, b)});
   const Index nE = static_cast<Index>(step.featureEdges.size());
   {
     std::vector<std::pair<Index, Index>> pairs;
@@ -196,8 +198,18 @@ LevelStep refineLevel(const LevelTopology& topology, const VectorX* mass, bool i
   // regular feature: two feature edges (by the midpoint of its boundary segment);
   // corner: keeps a copy of itself (rules below); curve end: its curve points stay on it;
   // pinned: interior on two faces, keeps a copy; carried: on no face nor feature edge (a
-  // solid's interior, an isolated vertex), copied unchanged.
+  // solid's interior, an isolated vertex), copied unchanged. A surface vertex where loose
+  // edges start is a corner on a border (the curves join its copy) and a curve end inside
+  // the surface (the curves start on it, its V-face interpolates it as before).
   const Index firstCopy = nC + 2 * nE;
+  // Feature edges of the faces at v (the curve edges are numbered after them).
+  auto surfaceFeatureCount = [&](Index v) {
+    const auto row = vertexFeatures.row(v);
+    return static_cast<Index>(
+        std::count_if(row.begin(), row.end(), [&](Index e) { return e < nSurfaceFeatures; }));
+  };
+  std::vector<Index> surfaceFeatures(static_cast<size_t>(nV), 0);
+  for (Index v = 0; v < nV; ++v) surfaceFeatures[v] = surfaceFeatureCount(v);
   std::vector<char> corner(static_cast<size_t>(nV), 0);
   std::vector<char> pinned(static_cast<size_t>(nV), 0);
   std::vector<char> curveEnd(static_cast<size_t>(nV), 0);
@@ -242,7 +254,7 @@ LevelStep refineLevel(const LevelTopology& topology, const VectorX* mass, bool i
     const bool carried = nf == 0 && nfeat == 0;
     // An interior vertex on exactly two faces (valence 2) would have a two-sided V-face:
     // it keeps a copy instead, inserted between its two face points (see the E-faces).
-    pinned[v] = nfeat == 0 && nf == 2;
+    pinned[v] = surfaceFeatures[v] == 0 && nf == 2;
     if (corner[v] || carried || pinned[v]) step.copy[v] = firstCopy + nCopies++;
     const Index featureElements = nfeat + (corner[v] || pinned[v] ? 1 : 0);
     if (nf > 0) faceShare[v] = (featureElements > 0 ? 0.5 : 1.0) / nf;
@@ -445,20 +457,25 @@ LevelStep refineLevel(const LevelTopology& topology, const VectorX* mass, bool i
           x = twin[prevCorner(x)];
         }
         emitFace(v, chain);
-        if (interpolate && vertexFeatures.rowSize(v) == 0 && !pinned[v]) addGroup(v, chain);
+        if (interpolate && surfaceFeatures[v] == 0 && !pinned[v]) addGroup(v, chain);
       }
     }
-  } else {
+  }
+  // The curves' next edges (Chaikin): each curve edge's two points, the points on either
+  // side of a curve vertex, a corner's copy to its curves' points. The faces' feature edges
+  // are not among them: the E- and V-faces close over their curve points.
+  if (nE > nSurfaceFeatures) {
     auto& edges = next.curveEdges;
-    edges.reserve(2 * static_cast<size_t>(nE) + nCopies);
+    edges.reserve(2 * static_cast<size_t>(nE - nSurfaceFeatures) + nCopies);
     auto addEdge = [&](Index a, Index b) { edges.push_back({std::min(a, b), std::max(a, b)}); };
-    for (Index e = 0; e < nE; ++e)
+    for (Index e = nSurfaceFeatures; e < nE; ++e)
       addEdge(curvePoint(e, step.featureEdges[e][0]), curvePoint(e, step.featureEdges[e][1]));
     for (Index v = 0; v < nV; ++v) {
       const auto incident = vertexFeatures.row(v);
       if (corner[v]) {
-        for (Index e : incident) addEdge(step.copy[v], curvePoint(e, v));
-      } else if (incident.size() == 2) {
+        for (Index e : incident)
+          if (e >= nSurfaceFeatures) addEdge(step.copy[v], curvePoint(e, v));
+      } else if (incident.size() == 2 && vertexCorners.rowSize(v) == 0) {
         addEdge(curvePoint(incident[0], v), curvePoint(incident[1], v));
       }
     }
@@ -497,7 +514,10 @@ LevelStep refineLevel(const LevelTopology& topology, const VectorX* mass, bool i
   step.anchor.resize(static_cast<size_t>(nV));
   for (Index v = 0; v < nV; ++v) {
     const auto incident = vertexFeatures.row(v);
-    if (step.copy[v] >= 0 || curveEnd[v])
+    if (step.copy[v] < 0 && surfaceFeatures[v] == 0 && step.vertexFace[v] >= 0)
+      // Inside the surface, where curves may start: its V-face, as for any interior vertex.
+      step.anchor[v] = {AnchorKind::Face, step.vertexFace[v], -1};
+    else if (step.copy[v] >= 0 || curveEnd[v])
       step.anchor[v] = {AnchorKind::Vertex, step.child[v], -1};
     else if (incident.size() == 2)
       step.anchor[v] = {AnchorKind::Segment, curvePoint(incident[0], v),

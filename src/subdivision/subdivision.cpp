@@ -6,6 +6,8 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
+#include <limits>
+#include <numbers>
 #include <string>
 
 #include "zsculpt/core/errors.h"
@@ -44,14 +46,70 @@ void validateMass(const Mesh& control, const VectorX& mass) {
                               std::to_string(mass[i]) + ", which is not positive and finite");
 }
 
+/// The edges of no face that are curves of their own: all of a curve's, and beside a surface
+/// those outside it (a sheet's hair, a wire beside a shell). A solid's interior lattice
+/// edges are inside its closed boundary surface, which is what is drawn and exported of a
+/// solid: they are not curves. Each connected set of such edges is judged by the midpoint of
+/// its first edge, inside when the faces' winding number there is past one half (the solid
+/// angle of every fan triangle, Van Oosterom and Strackee 1983), a point outside the faces'
+/// bounding box outside without that sum.
+std::vector<std::array<Index, 2>> curveEdges(const Mesh& control) {
+  std::vector<std::array<Index, 2>> loose;
+  for (Index e = 0; e < control.numEdges(); ++e)
+    if (control.isWireEdge(e)) loose.push_back(control.edge(e));
+  if (loose.empty() || control.numFaces() == 0) return loose;
+  // Connected sets of loose edges (union-find over their vertices).
+  std::vector<Index> parent(static_cast<size_t>(control.numVertices()));
+  for (Index v = 0; v < control.numVertices(); ++v) parent[v] = v;
+  auto find = [&](Index v) {
+    while (parent[v] != v) v = parent[v] = parent[parent[v]];
+    return v;
+  };
+  for (const auto& [a, b] : loose) parent[find(a)] = find(b);
+  const Points& p = control.positions();
+  Vec3 low = Vec3::Constant(std::numeric_limits<double>::infinity()), high = -low;
+  for (Index v : control.faces().indices) {
+    low = low.cwiseMin(p.row(v).transpose());
+    high = high.cwiseMax(p.row(v).transpose());
+  }
+  auto windingNumber = [&](const Vec3& x) {
+    double total = 0.0;
+    for (Index f = 0; f < control.numFaces(); ++f) {
+      const auto face = control.face(f);
+      const Vec3 a = p.row(face[0]).transpose() - x;
+      for (size_t k = 1; k + 1 < face.size(); ++k) {
+        const Vec3 b = p.row(face[k]).transpose() - x, c = p.row(face[k + 1]).transpose() - x;
+        const double la = a.norm(), lb = b.norm(), lc = c.norm();
+        total += 2.0 * std::atan2(a.dot(b.cross(c)),
+                                  la * lb * lc + a.dot(b) * lc + a.dot(c) * lb + b.dot(c) * la);
+      }
+    }
+    return total / (4.0 * std::numbers::pi);
+  };
+  std::vector<signed char> inside(static_cast<size_t>(control.numVertices()), -1);
+  std::vector<std::array<Index, 2>> curves;
+  for (const auto& edge : loose) {
+    signed char& judged = inside[find(edge[0])];
+    if (judged < 0) {
+      const Vec3 mid = 0.5 * (p.row(edge[0]) + p.row(edge[1])).transpose();
+      const bool inBox = (mid.array() >= low.array()).all() && (mid.array() <= high.array()).all();
+      judged = inBox && std::abs(windingNumber(mid)) > 0.5 ? 1 : 0;
+    }
+    if (judged == 0) curves.push_back(edge);
+  }
+  return curves;
+}
+
 }  // namespace
 
 double estimatedRefinedVertices(const Mesh& control, int levels) {
   if (levels <= 0) return static_cast<double>(control.numVertices());
-  const bool surface = control.numFaces() > 0;
-  const double first = surface ? static_cast<double>(control.faces().indices.size())
-                               : 2.0 * static_cast<double>(control.numEdges());
-  return first * std::pow(surface ? 4.0 : 2.0, levels - 1);
+  // Every edge of no face counted as a curve's (an upper bound: a solid's inner edges are
+  // not), so that the estimate costs no winding numbers.
+  double looseEdges = 0.0;
+  for (Index e = 0; e < control.numEdges(); ++e) looseEdges += control.isWireEdge(e) ? 1.0 : 0.0;
+  const double corners = static_cast<double>(control.faces().indices.size());
+  return corners * std::pow(4.0, levels - 1) + 2.0 * looseEdges * std::pow(2.0, levels - 1);
 }
 
 int levelsWithin(const Mesh& control, int wanted, double maxRefinedVertices) {
@@ -90,7 +148,9 @@ SubdivisionStencil::SubdivisionStencil(const Mesh& control, const SubdivisionOpt
   topology.numVertices = control.numVertices();
   topology.faces = control.faces();
   const bool surface = control.numFaces() > 0;
-  if (!surface) topology.curveEdges = control.edges();
+  // A curve's edges, or beside a surface its loose edges outside it (a sheet with a hair):
+  // refined by the curve rule, so that the whole mesh is drawn and exported.
+  topology.curveEdges = curveEdges(control);
 
   VectorX mass;
   if (options.mass) mass = *options.mass;
@@ -149,18 +209,27 @@ SubdivisionStencil::SubdivisionStencil(const Mesh& control, const SubdivisionOpt
   }
 
   refinedFaces_ = std::move(topology.faces);
+  numRefinedCurveEdges_ = static_cast<Index>(topology.curveEdges.size());
   if (surface) {
     subdivision_detail::faceEdgesAndRings(topology.numVertices, refinedFaces_, refinedEdges_,
                                           refinedNeighbors_);
-  } else {
-    refinedEdges_ = std::move(topology.curveEdges);
+  }
+  if (!topology.curveEdges.empty()) {
+    // The curves' edges after the faces' (a refined curve vertex is on no face, so the
+    // faces' rings keep their order and the curves' vertices get rings of their own).
     std::vector<std::pair<Index, Index>> pairs;
-    pairs.reserve(2 * refinedEdges_.size());
-    for (const auto& [a, b] : refinedEdges_) {
+    pairs.reserve(refinedNeighbors_.indices.size() + 2 * topology.curveEdges.size());
+    for (Index v = 0; v < refinedNeighbors_.rows(); ++v)
+      for (Index w : refinedNeighbors_.row(v)) pairs.emplace_back(v, w);
+    for (const auto& [a, b] : topology.curveEdges) {
       pairs.emplace_back(a, b);
       pairs.emplace_back(b, a);
     }
     refinedNeighbors_ = buildCsr(topology.numVertices, pairs);
+    refinedEdges_.insert(refinedEdges_.end(), topology.curveEdges.begin(),
+                         topology.curveEdges.end());
+  } else if (!surface) {
+    refinedNeighbors_ = buildCsr(topology.numVertices, {});
   }
   controlToRefined_.resize(static_cast<size_t>(numControl_));
   for (Index v = 0; v < numControl_; ++v) {
@@ -182,6 +251,7 @@ SubdivisionStencil& SubdivisionStencil::operator=(SubdivisionStencil&& other) no
   massTransfer_.swap(other.massTransfer_);  // swaps buffers: no element is copied
   refinedFaces_ = std::move(other.refinedFaces_);
   refinedEdges_ = std::move(other.refinedEdges_);
+  numRefinedCurveEdges_ = other.numRefinedCurveEdges_;
   refinedNeighbors_ = std::move(other.refinedNeighbors_);
   controlToRefined_ = std::move(other.controlToRefined_);
   anchors_ = std::move(other.anchors_);
@@ -393,8 +463,10 @@ Mesh refinedMesh(const SubdivisionStencil& stencil, Points refined) {
   std::vector<std::vector<Index>> polygons(static_cast<size_t>(faces.rows()));
   for (Index f = 0; f < faces.rows(); ++f)
     polygons[f].assign(faces.row(f).begin(), faces.row(f).end());
-  std::vector<std::array<Index, 2>> edges;
-  if (faces.rows() == 0) edges = stencil.refinedEdges();
+  // The curves' edges (the last numRefinedCurveEdges of refinedEdges); the faces' come
+  // from the faces.
+  const auto& all = stencil.refinedEdges();
+  std::vector<std::array<Index, 2>> edges(all.end() - stencil.numRefinedCurveEdges(), all.end());
   weldZeroLengthEdges(refined, polygons, edges);
   dropUnusedVertices(refined, polygons, edges);
   return Mesh(std::move(refined), polygons, edges);

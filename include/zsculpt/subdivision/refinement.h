@@ -11,8 +11,8 @@
 
 namespace zsculpt::subdivision_detail {
 
-/// A level's connectivity. Surface mode when `faces` has rows (edges come from the faces;
-/// `curveEdges` is ignored); curve mode otherwise (`curveEdges`, smaller index first).
+/// A level's connectivity: `faces` (their edges come from them) and `curveEdges`, the edges
+/// of no face (a curve, or loose edges beside a surface; smaller index first).
 struct LevelTopology {
   Index numVertices = 0;
   CsrIndex faces;

@@ -14,7 +14,8 @@
 //     boundary; corners (curve ends and junctions, one-face boundary vertices) keep a
 //     copy of themselves, and where every fan of faces wraps around one non-manifold edge
 //     the curve simply ends there;
-//   - curves (edges, no faces) use the same curve rule; vertices on no face of a surface
+//   - curves (edges of no face: a curve, or loose edges beside a surface) use the same
+//     curve rule, starting on the surface vertex they leave; vertices on no face of a surface
 //     (a solid's interior, isolated vertices) are carried unchanged; an interior vertex on
 //     only two faces keeps a copy between its two face points (no two-sided V-face).
 // With `interpolate`, the first level translates each vertex's V-face (or boundary
@@ -84,8 +85,11 @@ class SubdivisionStencil {
   [[nodiscard]] Index numRefinedVertices() const;
   /// Refined faces (CSR; polygons). Triangulate with a fan for drawing.
   [[nodiscard]] const CsrIndex& refinedFaces() const;
-  /// Refined edges for curves (a refined polyline) and wireframes.
+  /// Refined edges for curves (a refined polyline) and wireframes: the faces' edges, then
+  /// the curves' (numRefinedCurveEdges of them: a curve, or the loose edges beside a surface).
   [[nodiscard]] const std::vector<std::array<Index, 2>>& refinedEdges() const;
+  /// How many of refinedEdges(), at its end, are the curves' (edges of no face).
+  [[nodiscard]] Index numRefinedCurveEdges() const { return numRefinedCurveEdges_; }
   /// One-ring of each refined vertex through refinedEdges() (for bestPlaneNormals).
   [[nodiscard]] const CsrIndex& refinedVertexNeighbors() const;
   [[nodiscard]] const SparseRowMatrix& matrix() const;
@@ -120,6 +124,7 @@ class SubdivisionStencil {
   std::vector<SparseRowMatrix> massTransfer_;  // one per level, applied in order
   CsrIndex refinedFaces_;
   std::vector<std::array<Index, 2>> refinedEdges_;
+  Index numRefinedCurveEdges_ = 0;
   CsrIndex refinedNeighbors_;
   std::vector<Index> controlToRefined_;
   std::vector<InterpolationAnchor> anchors_;
