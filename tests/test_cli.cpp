@@ -1276,6 +1276,12 @@ TEST_F(Cli, RenderRefusesBadInputBeforeAnyWork) {
   // The folder the user named, not a frame in it they never named (a review).
   expectOneLineError(run("render builtin:torus --out /proc/zsculpt/frames"), 2,
                      "zsculpt: error: /proc/zsculpt/frames: cannot create the folder");
+  // A folder no file can be made in, which access() passes for root (/proc): refused before
+  // the work, not after it (a QA pass: reproduce ran its tables, then failed to write).
+  expectOneLineError(run("reproduce table1 --quick --out /proc/zsculpt"), 2,
+                     "zsculpt: error: /proc/zsculpt: cannot create the folder: /proc:");
+  expectOneLineError(run("reproduce table1 --quick --out /proc"), 2,
+                     "zsculpt: error: /proc: not writable");
   // CLI11's count message, in the words of the others.
   expectOneLineError(run("simulate builtin:torus --steps 1 --gravity 0,0"), 2,
                      "--gravity: expected 3 comma-separated values, got 2");

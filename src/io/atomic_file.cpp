@@ -326,6 +326,23 @@ void checkOutputFile(const std::string& path) {
   }
 }
 
+namespace {
+
+/// access() says yes, for root, to a folder no file can be made in (/proc): the run did its
+/// work and then failed to write (a QA pass). A file is made in `folder` and removed.
+void probeFileCreation(const fs::path& folder, const std::string& name, const std::string& what) {
+  const std::string probe = temporaryName(folder / ".zsculpt-probe");
+  const int fd = ::open(probe.c_str(), O_WRONLY | O_CREAT | O_EXCL | O_CLOEXEC, 0666);
+  if (fd < 0) {
+    if (errno != EEXIST) fail(name, what + "no file can be made in it (" + errnoText(errno) + ")");
+    return;
+  }
+  ::close(fd);
+  ::unlink(probe.c_str());
+}
+
+}  // namespace
+
 void checkCreatableDirectory(const std::string& dir) {
   const std::string name = dir.empty() ? std::string(".") : dir;
   std::error_code ec;
@@ -333,6 +350,7 @@ void checkCreatableDirectory(const std::string& dir) {
   if (fs::exists(p, ec)) {
     if (!fs::is_directory(p, ec)) fail(name, "not a folder");
     if (::access(name.c_str(), W_OK | X_OK) != 0) fail(name, "not writable: " + errnoText(errno));
+    probeFileCreation(p, name, "not writable: ");
     return;
   }
   // create_directories would make the missing folders in the nearest one that exists: that
@@ -346,6 +364,7 @@ void checkCreatableDirectory(const std::string& dir) {
     fail(name, "cannot create the folder: " + existing.string() + " is not a folder");
   if (::access(existing.c_str(), W_OK | X_OK) != 0)
     fail(name, "cannot create the folder: " + existing.string() + ": " + errnoText(errno));
+  probeFileCreation(existing, name, "cannot create the folder: " + existing.string() + ": ");
 }
 
 void ensureWritableDirectory(const std::string& dir) {
