@@ -22,6 +22,7 @@
 #include <thread>
 
 #include "zsculpt/app/commands.h"
+#include "zsculpt/app/interruptions.h"
 #include "zsculpt/app/picking.h"
 #include "zsculpt/app/plot_series.h"
 #include "zsculpt/app/recording.h"
@@ -2060,6 +2061,95 @@ TEST(Window, AWindowSizeTheDisplayOrContextCannotHaveIsRefusedInOneLine) {
     EXPECT_EQ(log.rfind(expected, 0), 0u) << log;
     EXPECT_EQ(std::count(log.begin(), log.end(), '\n'), 1) << log;
   }
+  fs::remove_all(dir);
+}
+
+// Runs `body` in a child process and returns its wait status (the handlers it installs and
+// the signals it raises stay in the child).
+template <class Body>
+int inChild(Body&& body) {
+  const pid_t child = ::fork();
+  if (child == 0) {
+    body();
+    std::_Exit(0);
+  }
+  int status = 0;
+  ::waitpid(child, &status, 0);
+  return status;
+}
+
+TEST(Interruptions, ASignalIsNotedTheThirdEndsTheProcessAndAnIgnoredOneStaysIgnored) {
+  // The window and the headless runs share this one mechanism; the window's own handlers
+  // closed a window started under nohup at the terminal's SIGHUP, and a third signal never
+  // ended a window that did not close.
+  const int noted = inChild([] {
+    const Interruptions interruptions;
+    std::raise(SIGINT);
+    std::raise(SIGTERM);  // two: `timeout` sends its signal to the process and its group
+    std::_Exit(Interruptions::signal() == SIGINT ? 7 : 1);
+  });
+  ASSERT_TRUE(WIFEXITED(noted)) << "ended by signal " << WTERMSIG(noted);
+  EXPECT_EQ(WEXITSTATUS(noted), 7);
+  const int third = inChild([] {
+    const Interruptions interruptions;
+    for (int k = 0; k < 3; ++k) std::raise(SIGTERM);
+    std::_Exit(1);
+  });
+  ASSERT_TRUE(WIFSIGNALED(third));
+  EXPECT_EQ(WTERMSIG(third), SIGTERM);
+  const int ignored = inChild([] {
+    std::signal(SIGHUP, SIG_IGN);  // nohup
+    {
+      const Interruptions interruptions;
+      std::raise(SIGHUP);
+      if (Interruptions::signal() != 0) std::_Exit(1);
+    }
+    struct sigaction now {};
+    ::sigaction(SIGHUP, nullptr, &now);
+    std::_Exit(now.sa_handler == SIG_IGN ? 7 : 2);
+  });
+  ASSERT_TRUE(WIFEXITED(ignored)) << "ended by signal " << WTERMSIG(ignored);
+  EXPECT_EQ(WEXITSTATUS(ignored), 7);
+  // Nested: the inner one's end keeps the handlers; the outer's puts back the default.
+  const int nested = inChild([] {
+    std::signal(SIGTERM, SIG_DFL);
+    {
+      const Interruptions outer;
+      { const Interruptions inner; }
+      std::raise(SIGTERM);
+      if (Interruptions::signal() != SIGTERM) std::_Exit(1);
+    }
+    // A signal came: the handlers stay until the caller has said so and ended by it.
+    std::raise(SIGTERM);
+    std::_Exit(7);
+  });
+  ASSERT_TRUE(WIFEXITED(nested)) << "ended by signal " << WTERMSIG(nested);
+  EXPECT_EQ(WEXITSTATUS(nested), 7);
+  const int restored = inChild([] {
+    std::signal(SIGTERM, SIG_DFL);
+    { const Interruptions interruptions; }
+    std::raise(SIGTERM);  // no signal came while it lived: the default action is back
+    std::_Exit(1);
+  });
+  ASSERT_TRUE(WIFSIGNALED(restored));
+  EXPECT_EQ(WTERMSIG(restored), SIGTERM);
+}
+
+TEST(Window, AWindowStartedUnderNohupOutlivesItsTerminalsHangUp) {
+  ZSCULPT_SKIP_WITHOUT_WINDOW();
+  const fs::path dir = tempDir("window_sighup");
+  const fs::path rc = dir / "rc.txt";
+  // SIGHUP ignored (as nohup leaves it), sent a second in; the window runs on until SIGTERM.
+  const std::string inner = "trap \"\" HUP; " + std::string(ZSCULPT_BINARY) +
+                            " open builtin:grid:6 & pid=$!; sleep 2; kill -HUP $pid; sleep 1; " +
+                            "kill -TERM $pid; wait $pid; echo $? > " + rc.string();
+  const std::string command = "timeout 120 xvfb-run -a -s \"-screen 0 1280x800x24\" sh -c '" +
+                              inner + "' > " + (dir / "log.txt").string() + " 2>&1";
+  ASSERT_EQ(std::system(command.c_str()), 0) << readText(dir / "log.txt");
+  EXPECT_EQ(readText(rc), "143\n") << readText(dir / "log.txt");
+  const std::string log = readText(dir / "log.txt");
+  EXPECT_EQ(log.find("closing on signal 1\n"), std::string::npos) << log;
+  EXPECT_NE(log.find("zsculpt: closing on signal 15"), std::string::npos) << log;
   fs::remove_all(dir);
 }
 

@@ -884,6 +884,12 @@ TEST_F(Cli, SubdivideKeepsLooseEdgesBesideTheSurfaceAsCurves) {
   }
   EXPECT_EQ(lines, 3);
   EXPECT_EQ(segmentEnds, 2);
+  // An STL file holds the triangles alone: said, not dropped silently (a QA pass).
+  const Result stl = run("subdivide " + path("hair.obj") + " --levels 1 --out " + path("h.stl"));
+  ASSERT_EQ(stl.status, 0) << stl.err;
+  EXPECT_NE(stl.out.find("; its 3 curve edges are not: STL holds triangles only)"),
+            std::string::npos)
+      << stl.out;
 }
 
 TEST_F(Cli, AScenesErrorsNameTheJsonPath) {

@@ -605,6 +605,105 @@ TEST(Mixed, AHairInsideTheSurfaceLeavesTheSurfaceAsItWas) {
   }
 }
 
+/// `mesh` with extra vertices and loose edges (indices into the extended vertex list).
+Mesh withLooseEdges(const Mesh& mesh, const std::vector<Vec3>& extra,
+                    const std::vector<std::array<Index, 2>>& edges) {
+  Points p(mesh.numVertices() + static_cast<Index>(extra.size()), 3);
+  p.topRows(mesh.numVertices()) = mesh.positions();
+  for (size_t k = 0; k < extra.size(); ++k)
+    p.row(mesh.numVertices() + static_cast<Index>(k)) = extra[k].transpose();
+  std::vector<std::array<Index, 2>> all;
+  for (Index e = 0; e < mesh.numEdges(); ++e)
+    if (mesh.isWireEdge(e)) all.push_back(mesh.edge(e));
+  all.insert(all.end(), edges.begin(), edges.end());
+  return Mesh(p, facesOf(mesh), all);
+}
+
+/// The refined curve edges (the last numRefinedCurveEdges of refinedEdges).
+Index curveEdgeCount(const Mesh& mesh, int levels = 1) {
+  return SubdivisionStencil(mesh, options(levels, true)).numRefinedCurveEdges();
+}
+
+TEST(Mixed, LooseEdgesAreCurvesOutsideAClosedSurfaceAndASolidsInsideOrBracesWithin) {
+  // A review found the loose edges judged in sets joined through surface vertices (a hair on
+  // a lattice's face took the lattice's verdict, or gave it its own, by the file's order),
+  // open surfaces called "inside" by a winding number past one half on their concave side,
+  // a face's diagonal judged by rounding, and a solid with faces wound both ways turned
+  // inside out.
+  const Mesh lattice = makeLattice(3);  // 27 vertices, 13 the centre, 4 a side's centre
+  ASSERT_EQ(curveEdgeCount(lattice), 0);
+  const Vec3 side = lattice.positions().row(4).transpose();
+  const Vec3 out = side + 0.8 * (side - Vec3(lattice.positions().row(13).transpose()));
+  // A hair on the lattice's side: a curve of one edge (two points and two joins), in
+  // whichever order the edges come.
+  const Mesh hairLast = withLooseEdges(lattice, {out}, {{4, 27}});
+  EXPECT_EQ(curveEdgeCount(hairLast), 2);
+  {
+    std::vector<std::array<Index, 2>> edges = {{4, 27}};
+    for (Index e = 0; e < lattice.numEdges(); ++e)
+      if (lattice.isWireEdge(e)) edges.push_back(lattice.edge(e));
+    Points p(28, 3);
+    p.topRows(27) = lattice.positions();
+    p.row(27) = out.transpose();
+    EXPECT_EQ(curveEdgeCount(Mesh(p, facesOf(lattice), edges)), 2);
+  }
+  // The same lattice with one side's faces wound the other way: still a solid.
+  {
+    auto faces = facesOf(lattice);
+    for (size_t f = 0; f < 4; ++f) std::reverse(faces[f].begin(), faces[f].end());
+    std::vector<std::array<Index, 2>> edges;
+    for (Index e = 0; e < lattice.numEdges(); ++e)
+      if (lattice.isWireEdge(e)) edges.push_back(lattice.edge(e));
+    EXPECT_EQ(curveEdgeCount(Mesh(lattice.positions(), faces, edges)), 0);
+  }
+  // A torus: a wire through its hole (inside its bounding box, outside the tube) is a curve;
+  // one inside the tube, and a strut from the tube to its core, are not.
+  const Mesh torus = makeTorus(12, 8);  // major radius 2, minor 1
+  EXPECT_EQ(
+      curveEdgeCount(withLooseEdges(torus, {Vec3(0, 0, -0.3), Vec3(0.1, 0.05, 0.3)}, {{96, 97}})),
+      3);
+  EXPECT_EQ(curveEdgeCount(
+                withLooseEdges(torus, {Vec3(2, 0, 0), Vec3(1.8, 0.5, 0.1)}, {{96, 97}, {0, 96}})),
+            0);
+  // An open box (a cupped sheet has no inside): a segment in its cup is a curve.
+  {
+    Points p(10, 3);
+    for (Index i = 0; i < 8; ++i) p.row(i) << (i & 1), (i >> 1) & 1, (i >> 2) & 1;
+    p.row(8) << 0.5, 0.5, 0.3;
+    p.row(9) << 0.5, 0.5, 0.7;
+    const Mesh box(p, {{0, 2, 3, 1}, {0, 1, 5, 4}, {2, 6, 7, 3}, {0, 4, 6, 2}, {1, 3, 7, 5}},
+                   {{8, 9}});
+    EXPECT_EQ(curveEdgeCount(box), 3);
+  }
+  // A brace (a face's diagonal) is the surface's, bent sheet or flat.
+  for (double bend : {0.0, 0.03}) {
+    const Mesh sheet = makeSheetWithHairs(false);
+    Points p = sheet.positions();
+    p(6, 2) = bend;
+    EXPECT_EQ(curveEdgeCount(Mesh(p, facesOf(sheet), {{0, 6}, {1, 5}})), 0) << bend;
+  }
+  // The estimate counts the curves the stencil makes: a lattice's inner edges are not.
+  const Mesh big = makeLattice(6);
+  EXPECT_EQ(estimatedRefinedVertices(big, 2),
+            4.0 * static_cast<double>(big.faces().indices.size()));
+  EXPECT_EQ(estimatedRefinedVertices(hairLast, 2),
+            4.0 * static_cast<double>(hairLast.faces().indices.size()) + 4.0);
+}
+
+TEST(Mixed, ACurveLeavingABorderLeavesTheSurfacesNormalsAlone) {
+  // The corner's copy that a hair leaves had the hair's first point in its ring: its
+  // best-plane normal tilted by about 31 degrees (a review).
+  const Mesh mesh = makeSheetWithHairs();
+  for (int levels : {1, 2}) {
+    const SubdivisionStencil stencil(mesh, options(levels, true));
+    const Points refined = refine(stencil, mesh.positions());
+    Points normals(refined.rows(), 3);
+    stencil.refinedNormals(refined, normals);
+    for (Index v : stencil.refinedFaces().indices)
+      EXPECT_NEAR(std::abs(normals(v, 2)), 1.0, 1e-12) << levels << ": " << v;
+  }
+}
+
 // ---- mass and momentum -----------------------------------------------------------------------
 
 TEST(Conservation, MassAndLinearMomentumAreCarriedExactly) {
@@ -835,6 +934,13 @@ TEST(Stencil, MovedStencilKeepsItsContents) {
   EXPECT_EQ(refine(c, mesh.positions()), expected);
   EXPECT_EQ(refine(copy, mesh.positions()), expected);
   EXPECT_EQ(c.refinedMass(VectorX::Ones(20)).size(), c.numRefinedVertices());
+  // A moved-from stencil is empty, its count of curve edges too (refinedMesh reads it).
+  const SubdivisionStencil curve(makeHelix(6), SubdivisionOptions{});
+  SubdivisionStencil d(curve);
+  const SubdivisionStencil e(std::move(d));
+  EXPECT_GT(e.numRefinedCurveEdges(), 0);
+  EXPECT_EQ(d.numRefinedCurveEdges(), 0);  // NOLINT(bugprone-use-after-move)
+  EXPECT_TRUE(d.refinedEdges().empty());   // NOLINT(bugprone-use-after-move)
 }
 
 // ---- measurements quoted in docs/subdivision.md ---------------------------------------------

@@ -1,13 +1,10 @@
 // The Display thread of paper section 6: window, input, tools and scripts. Panels are in
 // panels.cpp.
 
-#include <signal.h>
-
 #include <algorithm>
 #include <array>
 #include <chrono>
 #include <cmath>
-#include <csignal>
 #include <cstdint>
 #include <filesystem>
 #include <fstream>
@@ -24,6 +21,7 @@
 #include <imgui.h>
 
 #include "window.h"
+#include "zsculpt/app/interruptions.h"
 #include "zsculpt/core/errors.h"
 #include "zsculpt/io/atomic_file.h"
 #include "zsculpt/io/state_io.h"
@@ -291,43 +289,12 @@ void Window::openModel(const std::string& path) {
 
 // ---- the loop -----------------------------------------------------------------------------------
 
-namespace {
-
-// The signal that asked the window to close (SIGINT, SIGTERM, SIGHUP), 0 while none has.
-volatile std::sig_atomic_t closingSignal = 0;
-extern "C" void onClosingSignal(int signal) {
-  closingSignal = signal;
-}
-
-// Catches the closing signals for as long as the window runs, then puts back what was there:
-// killed, a session lost its recording and --state-out (the default action ends the process
-// where it stands).
-class ClosingSignals {
- public:
-  ClosingSignals() {
-    closingSignal = 0;
-    struct sigaction action {};
-    action.sa_handler = onClosingSignal;
-    sigemptyset(&action.sa_mask);
-    for (size_t k = 0; k < kSignals.size(); ++k) ::sigaction(kSignals[k], &action, &previous_[k]);
-  }
-  ~ClosingSignals() {
-    for (size_t k = 0; k < kSignals.size(); ++k) ::sigaction(kSignals[k], &previous_[k], nullptr);
-  }
-  ClosingSignals(const ClosingSignals&) = delete;
-  ClosingSignals& operator=(const ClosingSignals&) = delete;
-
- private:
-  static constexpr std::array<int, 3> kSignals{SIGINT, SIGTERM, SIGHUP};
-  std::array<struct sigaction, 3> previous_{};
-};
-
-}  // namespace
-
 int Window::run() {
-  const ClosingSignals signals;
+  // Killed, a session lost its recording and --state-out (the default action ends the
+  // process where it stands): a signal closes the window as its button does.
+  const Interruptions signals;
   while (!quit_) {
-    if (closingSignal != 0) {
+    if (const int closingSignal = Interruptions::signal(); closingSignal != 0) {
       // As the close button, without the question about unsaved edits (no one may be there
       // to answer): the session stops and what the command line asked for is written.
       if (!scripted_) std::cerr << "zsculpt: closing on signal " << closingSignal << "\n";
@@ -353,7 +320,7 @@ int Window::run() {
                             [&](std::ostream& out) { out << scriptLog_.dump(2) << "\n"; });
   }
   // The shell's convention for a process ended by a signal, after the outputs are written.
-  return closingSignal != 0 ? 128 + closingSignal : 0;
+  return Interruptions::signal() != 0 ? 128 + Interruptions::signal() : 0;
 }
 
 void Window::layout() {

@@ -62,7 +62,14 @@ int runSubdivide(const SubdivideOptions& options) {
       Index count = 0;
       for (Index f = 0; f < result.numFaces(); ++f)
         count += static_cast<Index>(result.face(f).size()) - 2;
-      triangles = " (" + std::to_string(count) + " triangles in the STL file)";
+      Index curves = 0;
+      for (Index e = 0; e < result.numEdges(); ++e) curves += result.isWireEdge(e) ? 1 : 0;
+      triangles = " (" + std::to_string(count) + " triangles in the STL file" +
+                  (curves > 0 ? "; its " + std::to_string(curves) +
+                                    (curves == 1 ? " curve edge is" : " curve edges are") +
+                                    " not: STL holds triangles only"
+                              : std::string()) +
+                  ")";
     }
     std::cout << "wrote " << options.out << ": " << result.numVertices() << " vertices, "
               << result.numEdges() << " edges, " << result.numFaces() << " faces" << triangles

@@ -1,6 +1,5 @@
 #include "console.h"
 
-#include <atomic>
 #include <csignal>
 #include <cstdio>
 #include <cstring>
@@ -9,23 +8,6 @@
 namespace zsculpt::cli {
 
 namespace {
-// Lock-free atomics: the handler may run on any thread (OpenMP's, the rasteriser's).
-std::atomic<int> interruptingSignal{0};
-std::atomic<int> interruptions{0};
-static_assert(std::atomic<int>::is_always_lock_free);
-// The third signal ends the process where it stands (a run stuck in a write to a pipe that
-// nobody reads). Not the second: `timeout` sends its signal twice, to the process and to
-// its group.
-extern "C" void onInterrupt(int signal) {
-  interruptingSignal.store(signal);
-  if (interruptions.fetch_add(1) + 1 >= 3) {
-    std::signal(signal, SIG_DFL);
-    std::raise(signal);
-  }
-}
-constexpr int kInterruptions[] = {SIGINT, SIGTERM, SIGHUP};
-struct sigaction previousActions[std::size(kInterruptions)];
-int interruptionsAlive = 0;
 bool lineDrawn = false;  // a bar's line is on the terminal, without its line end
 bool lineCleared = false;
 }  // namespace
@@ -59,35 +41,12 @@ InterruptedError::InterruptedError(int signal, bool outputsWritten)
                             : ": the run stopped and left no output")),
       signal_(signal) {}
 
-Interruptions::Interruptions() {
-  if (interruptionsAlive++ > 0) return;
-  interruptingSignal = 0;
-  interruptions = 0;
-  struct sigaction action {};
-  action.sa_handler = onInterrupt;
-  sigemptyset(&action.sa_mask);
-  // A signal ignored when the run began stays ignored (nohup's SIGHUP, an & job's SIGINT).
-  for (size_t k = 0; k < std::size(kInterruptions); ++k) {
-    ::sigaction(kInterruptions[k], nullptr, &previousActions[k]);
-    if (previousActions[k].sa_handler != SIG_IGN) ::sigaction(kInterruptions[k], &action, nullptr);
-  }
-}
-
-Interruptions::~Interruptions() {
-  // After a signal the handlers stay until the command line has said so and raised it
-  // (`timeout`'s second signal would otherwise end the process before the message).
-  if (--interruptionsAlive > 0 || interruptingSignal.load() != 0) return;
-  for (size_t k = 0; k < std::size(kInterruptions); ++k)
-    ::sigaction(kInterruptions[k], &previousActions[k], nullptr);
-}
-
 void throwIfInterrupted() {
-  if (const int signal = interruptingSignal.load(); signal != 0) throw InterruptedError(signal);
+  if (const int signal = Interruptions::signal(); signal != 0) throw InterruptedError(signal);
 }
 
 void endIfInterrupted() {
-  if (const int signal = interruptingSignal.load(); signal != 0)
-    throw InterruptedError(signal, true);
+  if (const int signal = Interruptions::signal(); signal != 0) throw InterruptedError(signal, true);
 }
 
 }  // namespace zsculpt::cli

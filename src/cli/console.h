@@ -5,6 +5,7 @@
 
 #include <string>
 
+#include "zsculpt/app/interruptions.h"
 #include "zsculpt/core/errors.h"
 
 namespace zsculpt::cli {
@@ -28,18 +29,9 @@ class InterruptedError : public Error {
   int signal_;
 };
 
-/// While one lives, SIGINT, SIGTERM and SIGHUP only note that they came, so that simulate and
-/// render stop between cycles (throwIfInterrupted) rather than where they stand, which left
-/// frames of a half run or a temporary file half written; a third signal ends the process at
-/// once. A signal ignored at the start stays ignored. The handlers before are put back at the
-/// end.
-class Interruptions {
- public:
-  Interruptions();
-  ~Interruptions();
-  Interruptions(const Interruptions&) = delete;
-  Interruptions& operator=(const Interruptions&) = delete;
-};
+/// SIGINT, SIGTERM and SIGHUP noted while one lives, so that simulate and render stop between
+/// cycles (throwIfInterrupted): the window's mechanism too (app/interruptions.h).
+using Interruptions = app::Interruptions;
 
 /// Throws InterruptedError if a signal came while Interruptions lived.
 void throwIfInterrupted();

@@ -231,6 +231,46 @@ void writeInPlace(const std::string& path, const std::function<void(std::ostream
   if (!good) fail(path, "write failed");
 }
 
+/// access() says yes, for root, to a folder no file can be made in (/proc): the run did its
+/// work and then failed to write (a QA pass). A file is made in `folder` and removed.
+void probeFileCreation(const fs::path& folder, const std::string& name, const std::string& what) {
+  const std::string probe = temporaryName(folder / ".zsculpt-probe");
+  const int fd = ::open(probe.c_str(), O_WRONLY | O_CREAT | O_EXCL | O_CLOEXEC, 0666);
+  if (fd < 0) {
+    if (errno != EEXIST) fail(name, what + "no file can be made in it (" + errnoText(errno) + ")");
+    return;
+  }
+  ::close(fd);
+  ::unlink(probe.c_str());
+}
+
+/// The folder exists and may be written, or can be made; with `probe`, a file is made and
+/// removed there (checkFileOutput probes with its own file's name instead).
+void checkFolderCreatable(const std::string& dir, bool probe) {
+  const std::string name = dir.empty() ? std::string(".") : dir;
+  std::error_code ec;
+  const fs::path p(name);
+  if (fs::exists(p, ec)) {
+    if (!fs::is_directory(p, ec)) fail(name, "not a folder");
+    if (::access(name.c_str(), W_OK | X_OK) != 0) fail(name, "not writable: " + errnoText(errno));
+    if (probe) probeFileCreation(p, name, "not writable: ");
+    return;
+  }
+  // create_directories would make the missing folders in the nearest one that exists: that
+  // one must be a folder the program may write in.
+  fs::path existing = p;
+  do {
+    existing = existing.has_relative_path() ? existing.parent_path() : fs::path();
+    if (existing.empty()) existing = ".";
+  } while (!fs::exists(existing, ec) && existing != ".");
+  if (!fs::is_directory(existing, ec))
+    fail(name, "cannot create the folder: " + existing.string() + " is not a folder");
+  if (::access(existing.c_str(), W_OK | X_OK) != 0)
+    fail(name, "cannot create the folder: " + existing.string() + ": " + errnoText(errno));
+  if (probe)
+    probeFileCreation(existing, name, "cannot create the folder: " + existing.string() + ": ");
+}
+
 }  // namespace
 
 void writeFileAtomically(const std::string& requested,
@@ -292,7 +332,7 @@ void checkOutputFile(const std::string& path) {
     return;
   }
   const fs::path parent = parentOf(target.path);
-  checkCreatableDirectory(parent.string());
+  checkFolderCreatable(parent.string(), false);
   // access() passes a name too long for the folder and, for root, a folder no file can be
   // made in (/proc): the write failed only after the work. The save's temporary name is the
   // longest name written, so that is what is checked; where the folder exists, a probe file
@@ -326,45 +366,8 @@ void checkOutputFile(const std::string& path) {
   }
 }
 
-namespace {
-
-/// access() says yes, for root, to a folder no file can be made in (/proc): the run did its
-/// work and then failed to write (a QA pass). A file is made in `folder` and removed.
-void probeFileCreation(const fs::path& folder, const std::string& name, const std::string& what) {
-  const std::string probe = temporaryName(folder / ".zsculpt-probe");
-  const int fd = ::open(probe.c_str(), O_WRONLY | O_CREAT | O_EXCL | O_CLOEXEC, 0666);
-  if (fd < 0) {
-    if (errno != EEXIST) fail(name, what + "no file can be made in it (" + errnoText(errno) + ")");
-    return;
-  }
-  ::close(fd);
-  ::unlink(probe.c_str());
-}
-
-}  // namespace
-
 void checkCreatableDirectory(const std::string& dir) {
-  const std::string name = dir.empty() ? std::string(".") : dir;
-  std::error_code ec;
-  const fs::path p(name);
-  if (fs::exists(p, ec)) {
-    if (!fs::is_directory(p, ec)) fail(name, "not a folder");
-    if (::access(name.c_str(), W_OK | X_OK) != 0) fail(name, "not writable: " + errnoText(errno));
-    probeFileCreation(p, name, "not writable: ");
-    return;
-  }
-  // create_directories would make the missing folders in the nearest one that exists: that
-  // one must be a folder the program may write in.
-  fs::path existing = p;
-  do {
-    existing = existing.has_relative_path() ? existing.parent_path() : fs::path();
-    if (existing.empty()) existing = ".";
-  } while (!fs::exists(existing, ec) && existing != ".");
-  if (!fs::is_directory(existing, ec))
-    fail(name, "cannot create the folder: " + existing.string() + " is not a folder");
-  if (::access(existing.c_str(), W_OK | X_OK) != 0)
-    fail(name, "cannot create the folder: " + existing.string() + ": " + errnoText(errno));
-  probeFileCreation(existing, name, "cannot create the folder: " + existing.string() + ": ");
+  checkFolderCreatable(dir, true);
 }
 
 void ensureWritableDirectory(const std::string& dir) {

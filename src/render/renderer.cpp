@@ -643,7 +643,8 @@ struct Renderer::Impl {
       edgeIndices.push_back(static_cast<std::uint32_t>(e[0]));
       edgeIndices.push_back(static_cast<std::uint32_t>(e[1]));
     }
-    // Edges with no face: curves, and a solid's interior lattice edges.
+    // Edges with no face: curves (with a stencil, a solid's inner edges are not among them:
+    // subdivision.h), and at level 0 a solid's interior lattice edges too.
     std::vector<std::uint32_t> wire;
     if (stencil == nullptr) {
       for (Index e = 0; e < mesh.numEdges(); ++e) {
@@ -669,11 +670,19 @@ struct Renderer::Impl {
 
     // Neighbour table of the refined mesh for best-plane normals.
     if (stencil != nullptr) {
+      // A curve's edge (the last numRefinedCurveEdges) joins the ring of its vertices that
+      // are on no face only: a border corner that a curve leaves keeps its surface's normal.
+      std::vector<char> onFace(static_cast<size_t>(n), 0);
+      for (Index v : surfaceFaces->indices) onFace[static_cast<size_t>(v)] = 1;
+      const size_t firstCurve =
+          surfaceEdges.size() - static_cast<size_t>(stencil->numRefinedCurveEdges());
       std::vector<std::pair<Index, Index>> pairs;
       pairs.reserve(surfaceEdges.size() * 2);
-      for (const auto& e : surfaceEdges) {
-        pairs.emplace_back(e[0], e[1]);
-        pairs.emplace_back(e[1], e[0]);
+      for (size_t k = 0; k < surfaceEdges.size(); ++k) {
+        const auto& e = surfaceEdges[k];
+        const bool curve = k >= firstCurve;
+        if (!curve || !onFace[static_cast<size_t>(e[0])]) pairs.emplace_back(e[0], e[1]);
+        if (!curve || !onFace[static_cast<size_t>(e[1])]) pairs.emplace_back(e[1], e[0]);
       }
       refinedNeighbors = buildCsr(n, pairs);
       surfaceNeighbors = &refinedNeighbors;

@@ -110,6 +110,9 @@ Index LevelStep::findFeatureEdge(Index a, Index b) const {
   return -1;
 }
 
+// The share of an inside surface vertex's mass that the curves leaving it take.
+constexpr double kCurveRootShare = 1e-3;
+
 LevelStep refineLevel(const LevelTopology& topology, const VectorX* mass, bool interpolate) {
   const Index nV = topology.numVertices;
   const CsrIndex& faces = topology.faces;
@@ -259,6 +262,14 @@ LevelStep refineLevel(const LevelTopology& topology, const VectorX* mass, bool i
     const Index featureElements = nfeat + (corner[v] || pinned[v] ? 1 : 0);
     if (nf > 0) faceShare[v] = (featureElements > 0 ? 0.5 : 1.0) / nf;
     if (featureElements > 0) featureShare[v] = (nf > 0 ? 0.5 : 1.0) / featureElements;
+    if (nf > 0 && surfaceFeatures[v] == 0 && nfeat > 0 && !pinned[v]) {
+      // Inside the surface, where curves start: their first points (the vertex itself) take
+      // a token share, so that the mass-weighted face points around it, and the surface, are
+      // nearly as without the curves (half, as at a border, moved a grid's surface by a
+      // tenth of its spacing: a QA pass).
+      faceShare[v] = (1.0 - kCurveRootShare) / nf;
+      featureShare[v] = kCurveRootShare / nfeat;
+    }
     if (carried) featureShare[v] = 1.0;
   }
   const Index nNew = firstCopy + nCopies;
@@ -487,6 +498,9 @@ LevelStep refineLevel(const LevelTopology& topology, const VectorX* mass, bool i
     std::vector<Index> members;
     for (Index v = 0; v < nV; ++v) {
       members.clear();
+      // Inside the surface, where curves start, the V-face is the group; the curves' first
+      // points are the vertex itself already, and keep their token mass (kCurveRootShare).
+      if (step.copy[v] < 0 && surfaceFeatures[v] == 0 && vertexCorners.rowSize(v) > 0) continue;
       if (step.copy[v] >= 0) {
         members.push_back(step.copy[v]);
       } else {
@@ -501,7 +515,7 @@ LevelStep refineLevel(const LevelTopology& topology, const VectorX* mass, bool i
   for (Index v = 0; v < nV; ++v) {
     if (step.copy[v] >= 0)
       step.child[v] = step.copy[v];
-    else if (curveEnd[v])
+    else if (curveEnd[v] && surfaceFeatures[v] > 0)
       step.child[v] = curvePoint(vertexFeatures.row(v)[0], v);
     else if (vertexCorners.rowSize(v) > 0)
       step.child[v] = vertexCorners.row(v)[0];

@@ -7,8 +7,9 @@
 #include <cmath>
 #include <cstdio>
 #include <limits>
-#include <numbers>
+#include <optional>
 #include <string>
+#include <utility>
 
 #include "zsculpt/core/errors.h"
 #include "zsculpt/subdivision/refinement.h"
@@ -46,75 +47,184 @@ void validateMass(const Mesh& control, const VectorX& mass) {
                               std::to_string(mass[i]) + ", which is not positive and finite");
 }
 
-/// The edges of no face that are curves of their own: all of a curve's, and beside a surface
-/// those outside it (a sheet's hair, a wire beside a shell). A solid's interior lattice
-/// edges are inside its closed boundary surface, which is what is drawn and exported of a
-/// solid: they are not curves. Each connected set of such edges is judged by the midpoint of
-/// its first edge, inside when the faces' winding number there is past one half (the solid
-/// angle of every fan triangle, Van Oosterom and Strackee 1983), a point outside the faces'
-/// bounding box outside without that sum.
-std::vector<std::array<Index, 2>> curveEdges(const Mesh& control) {
-  std::vector<std::array<Index, 2>> loose;
-  for (Index e = 0; e < control.numEdges(); ++e)
-    if (control.isWireEdge(e)) loose.push_back(control.edge(e));
-  if (loose.empty() || control.numFaces() == 0) return loose;
-  // Connected sets of loose edges (union-find over their vertices).
-  std::vector<Index> parent(static_cast<size_t>(control.numVertices()));
-  for (Index v = 0; v < control.numVertices(); ++v) parent[v] = v;
-  auto find = [&](Index v) {
-    while (parent[v] != v) v = parent[v] = parent[parent[v]];
-    return v;
-  };
-  for (const auto& [a, b] : loose) parent[find(a)] = find(b);
-  const Points& p = control.positions();
-  Vec3 low = Vec3::Constant(std::numeric_limits<double>::infinity()), high = -low;
-  for (Index v : control.faces().indices) {
-    low = low.cwiseMin(p.row(v).transpose());
-    high = high.cwiseMax(p.row(v).transpose());
+/// Whether points are inside the closed surface made of `triangles`, by the parity of the
+/// crossings of a ray (orientation does not matter: faces wound either way count alike).
+/// The triangles are bucketed by their projection along the ray, so that a query meets only
+/// those its ray can cross. A ray that passes within rounding of a triangle's edge or ends on
+/// one is cast again in another direction; after three such, the point is called outside.
+class ClosedSurfaceInside {
+ public:
+  explicit ClosedSurfaceInside(std::vector<std::array<Vec3, 3>> triangles)
+      : triangles_(std::move(triangles)) {}
+
+  bool inside(const Vec3& point) {
+    // Directions of no particular alignment with the axes (a lattice's grid of points and
+    // faces would put the axes' rays on edges).
+    static const Vec3 kDirections[] = {Vec3(0.5773, 0.6123, 0.5402).normalized(),
+                                       Vec3(-0.3172, 0.8251, -0.4675).normalized(),
+                                       Vec3(0.7071, -0.2931, 0.6437).normalized()};
+    for (size_t k = 0; k < std::size(kDirections); ++k) {
+      if (grids_.size() <= k) grids_.push_back(buildGrid(kDirections[k]));
+      const int crossings = countCrossings(grids_[k], point);
+      if (crossings >= 0) return crossings % 2 == 1;
+    }
+    return false;
   }
-  auto windingNumber = [&](const Vec3& x) {
-    double total = 0.0;
-    for (Index f = 0; f < control.numFaces(); ++f) {
-      const auto face = control.face(f);
-      const Vec3 a = p.row(face[0]).transpose() - x;
-      for (size_t k = 1; k + 1 < face.size(); ++k) {
-        const Vec3 b = p.row(face[k]).transpose() - x, c = p.row(face[k + 1]).transpose() - x;
-        const double la = a.norm(), lb = b.norm(), lc = c.norm();
-        total += 2.0 * std::atan2(a.dot(b.cross(c)),
-                                  la * lb * lc + a.dot(b) * lc + a.dot(c) * lb + b.dot(c) * la);
+
+ private:
+  struct Grid {
+    Vec3 direction, across, up;  // the ray and two directions across it
+    double u0 = 0, v0 = 0, cell = 1;
+    Index size = 1;
+    CsrIndex buckets;  // triangles per cell
+  };
+
+  Grid buildGrid(const Vec3& direction) const {
+    Grid g;
+    g.direction = direction;
+    g.across = direction.cross(Vec3::UnitX()).normalized();
+    g.up = direction.cross(g.across);
+    double u1 = -std::numeric_limits<double>::infinity(), v1 = u1;
+    g.u0 = g.v0 = std::numeric_limits<double>::infinity();
+    for (const auto& t : triangles_)
+      for (const Vec3& p : t) {
+        g.u0 = std::min(g.u0, p.dot(g.across));
+        u1 = std::max(u1, p.dot(g.across));
+        g.v0 = std::min(g.v0, p.dot(g.up));
+        v1 = std::max(v1, p.dot(g.up));
       }
+    g.size = std::clamp<Index>(
+        static_cast<Index>(std::sqrt(static_cast<double>(triangles_.size()))), 1, 1024);
+    g.cell = std::max(std::max(u1 - g.u0, v1 - g.v0) / static_cast<double>(g.size),
+                      std::numeric_limits<double>::min());
+    std::vector<std::pair<Index, Index>> pairs;
+    for (size_t i = 0; i < triangles_.size(); ++i) {
+      double lu = std::numeric_limits<double>::infinity(), hu = -lu, lv = lu, hv = -lu;
+      for (const Vec3& p : triangles_[i]) {
+        lu = std::min(lu, p.dot(g.across));
+        hu = std::max(hu, p.dot(g.across));
+        lv = std::min(lv, p.dot(g.up));
+        hv = std::max(hv, p.dot(g.up));
+      }
+      const Index a0 = cellOf(g, lu, g.u0), a1 = cellOf(g, hu, g.u0);
+      const Index b0 = cellOf(g, lv, g.v0), b1 = cellOf(g, hv, g.v0);
+      for (Index a = a0; a <= a1; ++a)
+        for (Index b = b0; b <= b1; ++b) pairs.emplace_back(a * g.size + b, static_cast<Index>(i));
     }
-    return total / (4.0 * std::numbers::pi);
-  };
-  std::vector<signed char> inside(static_cast<size_t>(control.numVertices()), -1);
-  std::vector<std::array<Index, 2>> curves;
-  for (const auto& edge : loose) {
-    signed char& judged = inside[find(edge[0])];
-    if (judged < 0) {
-      const Vec3 mid = 0.5 * (p.row(edge[0]) + p.row(edge[1])).transpose();
-      const bool inBox = (mid.array() >= low.array()).all() && (mid.array() <= high.array()).all();
-      judged = inBox && std::abs(windingNumber(mid)) > 0.5 ? 1 : 0;
-    }
-    if (judged == 0) curves.push_back(edge);
+    g.buckets = buildCsr(g.size * g.size, pairs);
+    return g;
   }
+
+  static Index cellOf(const Grid& g, double x, double origin) {
+    return std::clamp<Index>(static_cast<Index>(std::floor((x - origin) / g.cell)), 0, g.size - 1);
+  }
+
+  // Crossings of the ray from `point` (Moeller and Trumbore), or -1 when it grazes an edge.
+  int countCrossings(const Grid& g, const Vec3& point) const {
+    const double u = point.dot(g.across), v = point.dot(g.up);
+    if (u < g.u0 || v < g.v0 || u > g.u0 + g.cell * static_cast<double>(g.size) ||
+        v > g.v0 + g.cell * static_cast<double>(g.size))
+      return 0;
+    constexpr double kGraze = 1e-9;
+    int crossings = 0;
+    for (Index i : g.buckets.row(cellOf(g, u, g.u0) * g.size + cellOf(g, v, g.v0))) {
+      const auto& [a, b, c] = triangles_[static_cast<size_t>(i)];
+      const Vec3 e1 = b - a, e2 = c - a, h = g.direction.cross(e2);
+      const double det = e1.dot(h);
+      const double scale = e1.norm() * e2.norm();
+      if (std::abs(det) <= 1e-12 * scale) continue;  // the ray runs along the triangle
+      const Vec3 s = point - a;
+      const double f = 1.0 / det;
+      const double beta = f * s.dot(h);
+      const Vec3 q = s.cross(e1);
+      const double gamma = f * g.direction.dot(q);
+      const double t = f * e2.dot(q);
+      const double alpha = 1.0 - beta - gamma;
+      if (beta < -kGraze || gamma < -kGraze || alpha < -kGraze) continue;
+      if (beta < kGraze || gamma < kGraze || alpha < kGraze) return -1;
+      const double length = std::sqrt(scale);
+      if (std::abs(t) <= kGraze * length) return -1;  // the point is on the surface
+      if (t > 0.0) ++crossings;
+    }
+    return crossings;
+  }
+
+  std::vector<std::array<Vec3, 3>> triangles_;
+  std::vector<Grid> grids_;
+};
+
+/// The edges of no face that are curves of their own: all of a curve's, and beside a surface
+/// those outside it (a sheet's hair, a wire beside a shell). Left to the surface, as before:
+/// a solid's interior lattice edges, inside a closed part of the surface (faces joined across
+/// their edges, none of them a border), which is what is drawn and exported of a solid; and
+/// braces, edges joining two corners of one face. Each edge is judged by its midpoint, so
+/// that the verdict depends neither on the order of the edges nor on its neighbours (a wire
+/// that crosses the surface is a curve where it is outside).
+std::vector<std::array<Index, 2>> curveEdges(const Mesh& control) {
+  std::vector<std::array<Index, 2>> curves;
+  for (Index e = 0; e < control.numEdges(); ++e)
+    if (control.isWireEdge(e)) curves.push_back(control.edge(e));
+  if (control.numFaces() == 0 || curves.empty()) return curves;
+  const Index nF = control.numFaces();
+  const Points& p = control.positions();
+  auto position = [&](Index v) { return Vec3(p.row(v).transpose()); };
+  // Closed parts: faces joined across shared edges; a part with a border edge is open.
+  std::vector<Index> parent(static_cast<size_t>(nF));
+  auto find = [&](Index x) {
+    while (parent[x] != x) x = parent[x] = parent[parent[x]];
+    return x;
+  };
+  for (Index f = 0; f < nF; ++f) parent[f] = f;
+  for (Index e = 0; e < control.numEdges(); ++e) {
+    const auto faces = control.edgeFaces(e);
+    for (size_t k = 1; k < faces.size(); ++k) parent[find(faces[k])] = find(faces[0]);
+  }
+  std::vector<char> open(static_cast<size_t>(nF), 0);
+  for (Index e = 0; e < control.numEdges(); ++e)
+    if (control.isBoundaryEdge(e)) open[find(control.edgeFaces(e)[0])] = 1;
+  std::vector<std::array<Vec3, 3>> triangles;
+  for (Index f = 0; f < nF; ++f) {
+    if (open[find(f)]) continue;
+    const auto face = control.face(f);
+    for (size_t k = 1; k + 1 < face.size(); ++k)
+      triangles.push_back({position(face[0]), position(face[k]), position(face[k + 1])});
+  }
+  std::optional<ClosedSurfaceInside> surface;
+  if (!triangles.empty()) surface.emplace(std::move(triangles));
+  std::erase_if(curves, [&](const std::array<Index, 2>& edge) {
+    const auto fa = control.vertexFaces(edge[0]), fb = control.vertexFaces(edge[1]);
+    const bool brace = std::any_of(fa.begin(), fa.end(), [&](Index f) {
+      return std::find(fb.begin(), fb.end(), f) != fb.end();
+    });
+    return brace || (surface && surface->inside(0.5 * (position(edge[0]) + position(edge[1]))));
+  });
   return curves;
+}
+
+}  // namespace
+
+namespace {
+
+/// One per face corner at the first level and four times as many at each later one, and two
+/// per curve edge, doubling.
+double estimateFor(const Mesh& control, double curveEdgeCount, int levels) {
+  if (levels <= 0) return static_cast<double>(control.numVertices());
+  const double corners = static_cast<double>(control.faces().indices.size());
+  return corners * std::pow(4.0, levels - 1) + 2.0 * curveEdgeCount * std::pow(2.0, levels - 1);
 }
 
 }  // namespace
 
 double estimatedRefinedVertices(const Mesh& control, int levels) {
   if (levels <= 0) return static_cast<double>(control.numVertices());
-  // Every edge of no face counted as a curve's (an upper bound: a solid's inner edges are
-  // not), so that the estimate costs no winding numbers.
-  double looseEdges = 0.0;
-  for (Index e = 0; e < control.numEdges(); ++e) looseEdges += control.isWireEdge(e) ? 1.0 : 0.0;
-  const double corners = static_cast<double>(control.faces().indices.size());
-  return corners * std::pow(4.0, levels - 1) + 2.0 * looseEdges * std::pow(2.0, levels - 1);
+  return estimateFor(control, static_cast<double>(curveEdges(control).size()), levels);
 }
 
 int levelsWithin(const Mesh& control, int wanted, double maxRefinedVertices) {
+  if (wanted <= 0) return 0;
+  const double curves = static_cast<double>(curveEdges(control).size());
   int levels = 0;
-  while (levels < wanted && estimatedRefinedVertices(control, levels + 1) <= maxRefinedVertices)
+  while (levels < wanted && estimateFor(control, curves, levels + 1) <= maxRefinedVertices)
     ++levels;
   return levels;
 }
@@ -127,7 +237,8 @@ SubdivisionStencil::SubdivisionStencil(const Mesh& control, const SubdivisionOpt
   if (options.mass) validateMass(control, *options.mass);
   // Refuse up front, before any work, what would not fit, naming the levels that would.
   // (Level 0 is the control mesh itself: a format conversion, whatever its size.)
-  const double estimate = estimatedRefinedVertices(control, levels_);
+  std::vector<std::array<Index, 2>> curves = curveEdges(control);
+  const double estimate = estimateFor(control, static_cast<double>(curves.size()), levels_);
   if (levels_ > 0 && estimate > options.maxRefinedVertices) {
     const int fit = levelsWithin(control, levels_, options.maxRefinedVertices);
     char text[320];
@@ -150,7 +261,7 @@ SubdivisionStencil::SubdivisionStencil(const Mesh& control, const SubdivisionOpt
   const bool surface = control.numFaces() > 0;
   // A curve's edges, or beside a surface its loose edges outside it (a sheet with a hair):
   // refined by the curve rule, so that the whole mesh is drawn and exported.
-  topology.curveEdges = curveEdges(control);
+  topology.curveEdges = std::move(curves);
 
   VectorX mass;
   if (options.mass) mass = *options.mass;
@@ -215,15 +326,19 @@ SubdivisionStencil::SubdivisionStencil(const Mesh& control, const SubdivisionOpt
                                           refinedNeighbors_);
   }
   if (!topology.curveEdges.empty()) {
-    // The curves' edges after the faces' (a refined curve vertex is on no face, so the
-    // faces' rings keep their order and the curves' vertices get rings of their own).
+    // The curves' edges after the faces'. A vertex on a face keeps its ring through the faces
+    // (a corner's copy that a curve leaves would tilt its best-plane normal towards the
+    // curve); the curves' own vertices get rings along them.
     std::vector<std::pair<Index, Index>> pairs;
     pairs.reserve(refinedNeighbors_.indices.size() + 2 * topology.curveEdges.size());
     for (Index v = 0; v < refinedNeighbors_.rows(); ++v)
       for (Index w : refinedNeighbors_.row(v)) pairs.emplace_back(v, w);
+    auto onFace = [&](Index v) {
+      return v < refinedNeighbors_.rows() && refinedNeighbors_.rowSize(v) > 0;
+    };
     for (const auto& [a, b] : topology.curveEdges) {
-      pairs.emplace_back(a, b);
-      pairs.emplace_back(b, a);
+      if (!onFace(a)) pairs.emplace_back(a, b);
+      if (!onFace(b)) pairs.emplace_back(b, a);
     }
     refinedNeighbors_ = buildCsr(topology.numVertices, pairs);
     refinedEdges_.insert(refinedEdges_.end(), topology.curveEdges.begin(),
@@ -251,7 +366,7 @@ SubdivisionStencil& SubdivisionStencil::operator=(SubdivisionStencil&& other) no
   massTransfer_.swap(other.massTransfer_);  // swaps buffers: no element is copied
   refinedFaces_ = std::move(other.refinedFaces_);
   refinedEdges_ = std::move(other.refinedEdges_);
-  numRefinedCurveEdges_ = other.numRefinedCurveEdges_;
+  numRefinedCurveEdges_ = std::exchange(other.numRefinedCurveEdges_, 0);
   refinedNeighbors_ = std::move(other.refinedNeighbors_);
   controlToRefined_ = std::move(other.controlToRefined_);
   anchors_ = std::move(other.anchors_);

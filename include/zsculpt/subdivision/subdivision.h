@@ -51,7 +51,8 @@ struct SubdivisionOptions {
 
 /// About how many vertices `levels` levels of the scheme make from `control`, without
 /// building anything: one per face corner at the first level and four times as many at each
-/// later one (exact for a closed mesh), or for a curve two per edge, doubling.
+/// later one (exact for a closed mesh), and two per curve edge, doubling (the curves as the
+/// stencil finds them: a solid's inner edges are not curves).
 double estimatedRefinedVertices(const Mesh& control, int levels);
 
 /// The most levels, at most `wanted`, whose estimate stays within `maxRefinedVertices`.
@@ -90,7 +91,8 @@ class SubdivisionStencil {
   [[nodiscard]] const std::vector<std::array<Index, 2>>& refinedEdges() const;
   /// How many of refinedEdges(), at its end, are the curves' (edges of no face).
   [[nodiscard]] Index numRefinedCurveEdges() const { return numRefinedCurveEdges_; }
-  /// One-ring of each refined vertex through refinedEdges() (for bestPlaneNormals).
+  /// One-ring of each refined vertex (for bestPlaneNormals): through the faces' edges for a
+  /// vertex on a face, along the curves for a curve's own vertex.
   [[nodiscard]] const CsrIndex& refinedVertexNeighbors() const;
   [[nodiscard]] const SparseRowMatrix& matrix() const;
 
