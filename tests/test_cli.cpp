@@ -892,6 +892,22 @@ TEST_F(Cli, SubdivideKeepsLooseEdgesBesideTheSurfaceAsCurves) {
       << stl.out;
 }
 
+TEST_F(Cli, InfoSaysWhatTheImportDroppedBesideTheFaces) {
+  // A line whose two ends are one point (`l 4 4`, or two vertices at one position) is no
+  // spring and was dropped, with its vertex, without a word (a QA pass).
+  std::ofstream(path("loop.obj"))
+      << "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 5 5 5\nv 5 5 5\nf 1 2 3\nl 4 5\n";
+  const Result r = run("info " + path("loop.obj"));
+  ASSERT_EQ(r.status, 0) << r.err;
+  EXPECT_NE(r.out.find("1 point or zero-length line dropped, 1 vertex that no face or line uses "
+                       "dropped"),
+            std::string::npos)
+      << r.out;
+  const auto j = nlohmann::json::parse(run("info " + path("loop.obj") + " --json").out);
+  EXPECT_EQ(j["points_and_lines_dropped"].get<int>(), 1);
+  EXPECT_EQ(j["unused_vertices_dropped"].get<int>(), 1);
+}
+
 TEST_F(Cli, AScenesErrorsNameTheJsonPath) {
   std::ofstream(path("scene.json")) << R"({"mesh": "builtin:grid", "properties": {"mass": 0}})";
   const Result r = run("info " + path("scene.json"));

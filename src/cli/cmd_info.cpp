@@ -75,6 +75,8 @@ int runInfo(const ModelOptions& options, bool json) {
               << "  \"bbox_max\": " << vec(box.max) << ",\n"
               << "  \"mass_total\": " << jsonNumber(p.mass.sum()) << ",\n"
               << "  \"degenerate_faces_dropped\": " << loaded.report.degenerateFacesDropped << ",\n"
+              << "  \"points_and_lines_dropped\": " << loaded.report.pointsAndLinesDropped << ",\n"
+              << "  \"unused_vertices_dropped\": " << loaded.report.unusedVerticesDropped << ",\n"
               << "  \"vertices_welded\": " << loaded.report.verticesWelded << ",\n"
               << "  \"faces_reversed\": " << loaded.report.facesReversed << ",\n"
               << "  \"non_orientable_components\": " << loaded.report.nonOrientableComponents
@@ -123,6 +125,18 @@ int runInfo(const ModelOptions& options, bool json) {
     if (loaded.report.degenerateFacesDropped)
       parts.push_back(std::to_string(loaded.report.degenerateFacesDropped) +
                       " degenerate faces dropped");
+    // A point, or a line whose ends weld into one (a zero-length spring), is no spring: it
+    // was dropped without a word (a QA pass).
+    if (loaded.report.pointsAndLinesDropped)
+      parts.push_back(std::to_string(loaded.report.pointsAndLinesDropped) +
+                      (loaded.report.pointsAndLinesDropped == 1
+                           ? " point or zero-length line dropped"
+                           : " points or zero-length lines dropped"));
+    if (loaded.report.unusedVerticesDropped)
+      parts.push_back(std::to_string(loaded.report.unusedVerticesDropped) +
+                      (loaded.report.unusedVerticesDropped == 1
+                           ? " vertex that no face or line uses dropped"
+                           : " vertices that no face or line uses dropped"));
     if (loaded.report.facesReversed)
       parts.push_back(std::to_string(loaded.report.facesReversed) +
                       " faces reversed to wind as their neighbours (a closed sheet outward)");
