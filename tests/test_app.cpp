@@ -2131,6 +2131,20 @@ TEST(Interruptions, ASignalIsNotedTheThirdEndsTheProcessAndAnIgnoredOneStaysIgno
     std::raise(SIGTERM);  // no signal came while it lived: the default action is back
     std::_Exit(1);
   });
+  // After one that caught a signal and left its handlers, the next still puts back the
+  // handlers from before the first (not its own, saved as "previous").
+  const int again = inChild([] {
+    std::signal(SIGTERM, SIG_DFL);
+    {
+      const Interruptions first;
+      std::raise(SIGTERM);
+    }
+    { const Interruptions second; }
+    std::raise(SIGTERM);
+    std::_Exit(1);
+  });
+  ASSERT_TRUE(WIFSIGNALED(again));
+  EXPECT_EQ(WTERMSIG(again), SIGTERM);
   ASSERT_TRUE(WIFSIGNALED(restored));
   EXPECT_EQ(WTERMSIG(restored), SIGTERM);
 }
@@ -2141,7 +2155,7 @@ TEST(Window, AWindowStartedUnderNohupOutlivesItsTerminalsHangUp) {
   const fs::path rc = dir / "rc.txt";
   // SIGHUP ignored (as nohup leaves it), sent a second in; the window runs on until SIGTERM.
   const std::string inner = "trap \"\" HUP; " + std::string(ZSCULPT_BINARY) +
-                            " open builtin:grid:6 & pid=$!; sleep 2; kill -HUP $pid; sleep 1; " +
+                            " open builtin:grid:6 & pid=$!; sleep 3; kill -HUP $pid; sleep 1; " +
                             "kill -TERM $pid; wait $pid; echo $? > " + rc.string();
   const std::string command = "timeout 120 xvfb-run -a -s \"-screen 0 1280x800x24\" sh -c '" +
                               inner + "' > " + (dir / "log.txt").string() + " 2>&1";

@@ -1304,6 +1304,10 @@ TEST_F(Cli, RenderRefusesBadInputBeforeAnyWork) {
                      "zsculpt: error: /proc/zsculpt: cannot create the folder: /proc:");
   expectOneLineError(run("reproduce table1 --quick --out /proc"), 2,
                      "zsculpt: error: /proc: not writable");
+  // A file in a folder still to be made there: probed too (a review found the file's check
+  // probing only a folder that exists).
+  expectOneLineError(run("simulate builtin:torus --steps 1 --csv /proc/zsculpt/d.csv"), 2,
+                     "zsculpt: error: /proc/zsculpt: cannot create the folder: /proc");
   // CLI11's count message, in the words of the others.
   expectOneLineError(run("simulate builtin:torus --steps 1 --gravity 0,0"), 2,
                      "--gravity: expected 3 comma-separated values, got 2");

@@ -690,6 +690,78 @@ TEST(Mixed, LooseEdgesAreCurvesOutsideAClosedSurfaceAndASolidsInsideOrBracesWith
             4.0 * static_cast<double>(hairLast.faces().indices.size()) + 4.0);
 }
 
+TEST(Mixed, ShellsInsideShellsFinsAndThinTrianglesKeepTheirInsides) {
+  // A second review: crossings counted over all closed parts at once made a point inside a
+  // shell inside another (two crossings) outside; a fin on a solid's edge opened the whole
+  // solid; a long thin triangle seen along its length filled the grid's every cell.
+  auto cube = [](Points& p, std::vector<std::vector<Index>>& faces, double lo, double hi) {
+    const Index base = static_cast<Index>(p.rows());
+    p.conservativeResize(base + 8, 3);
+    for (Index i = 0; i < 8; ++i)
+      p.row(base + i) << (i & 1 ? hi : lo), ((i >> 1) & 1 ? hi : lo), ((i >> 2) & 1 ? hi : lo);
+    for (const auto& f : std::vector<std::vector<Index>>{
+             {0, 2, 3, 1}, {4, 5, 7, 6}, {0, 1, 5, 4}, {2, 6, 7, 3}, {0, 4, 6, 2}, {1, 3, 7, 5}}) {
+      faces.emplace_back();
+      for (Index v : f) faces.back().push_back(base + v);
+    }
+  };
+  Points p(0, 3);
+  std::vector<std::vector<Index>> faces;
+  cube(p, faces, 0.0, 3.0);
+  cube(p, faces, 1.0, 2.0);
+  const Index n = static_cast<Index>(p.rows());
+  p.conservativeResize(n + 6, 3);
+  p.row(n) << 1.4, 1.5, 1.5;  // inside the inner shell
+  p.row(n + 1) << 1.6, 1.45, 1.55;
+  p.row(n + 2) << 0.4, 0.5, 0.5;  // between the shells
+  p.row(n + 3) << 0.6, 0.45, 0.55;
+  p.row(n + 4) << 4.0, 1.5, 1.5;  // outside
+  p.row(n + 5) << 4.5, 1.5, 1.6;
+  EXPECT_EQ(curveEdgeCount(Mesh(p, faces, {{n, n + 1}})), 0);
+  EXPECT_EQ(curveEdgeCount(Mesh(p, faces, {{n + 2, n + 3}})), 0);
+  EXPECT_EQ(curveEdgeCount(Mesh(p, faces, {{n + 4, n + 5}})), 3);
+  // A fin on an edge of the outer cube (vertices 0 and 1): the cube keeps its inside.
+  {
+    Points q = p;
+    q.conservativeResize(p.rows() + 2, 3);
+    q.row(p.rows()) << 0.0, -1.0, -1.0;
+    q.row(p.rows() + 1) << 3.0, -1.0, -1.0;
+    auto withFin = faces;
+    const Index m = static_cast<Index>(p.rows());
+    withFin.push_back({0, 1, m + 1, m});
+    EXPECT_EQ(curveEdgeCount(Mesh(q, withFin, {{n + 2, n + 3}})), 0);
+    EXPECT_EQ(curveEdgeCount(Mesh(q, withFin, {{n + 4, n + 5}})), 3);
+  }
+  // A long thin prism along the ray's plane (its sides are long thin triangles): a segment
+  // in it is inside, one beside it outside.
+  {
+    const Index sides = 200;
+    Points q(2 * sides + 6, 3);
+    std::vector<std::vector<Index>> prism;
+    for (Index k = 0; k < sides; ++k) {
+      const double a = 2.0 * std::numbers::pi * static_cast<double>(k) / sides;
+      q.row(k) << 0.1 * std::cos(a), 0.1 * std::sin(a), 0.0;
+      q.row(sides + k) << 0.1 * std::cos(a), 0.1 * std::sin(a), 10.0;
+      prism.push_back({k, (k + 1) % sides, sides + (k + 1) % sides, sides + k});
+    }
+    std::vector<Index> bottom, top;
+    for (Index k = 0; k < sides; ++k) {
+      bottom.push_back(sides - 1 - k);
+      top.push_back(sides + k);
+    }
+    prism.push_back(bottom);
+    prism.push_back(top);
+    q.row(2 * sides) << 0.01, 0.02, 4.0;
+    q.row(2 * sides + 1) << -0.02, 0.01, 6.0;
+    q.row(2 * sides + 2) << 0.5, 0.0, 4.0;
+    q.row(2 * sides + 3) << 0.6, 0.1, 6.0;
+    q.row(2 * sides + 4) << 0.0, 0.0, -1.0;
+    q.row(2 * sides + 5) << 0.0, 0.0, -2.0;
+    EXPECT_EQ(curveEdgeCount(Mesh(q, prism, {{2 * sides, 2 * sides + 1}})), 0);
+    EXPECT_EQ(curveEdgeCount(Mesh(q, prism, {{2 * sides + 2, 2 * sides + 3}})), 3);
+  }
+}
+
 TEST(Mixed, ACurveLeavingABorderLeavesTheSurfacesNormalsAlone) {
   // The corner's copy that a hair leaves had the hair's first point in its ring: its
   // best-plane normal tilted by about 31 degrees (a review).

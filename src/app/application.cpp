@@ -230,7 +230,8 @@ void Window::startSession(std::unique_ptr<Session> session, bool record) {
   gesture_ = Gesture::None;
 
   builder_ = std::make_unique<FrameBuilder>(*mesh_);
-  view_.levels = affordableLevels(*mesh_, 2);
+  mostLevels_ = affordableLevels(*mesh_, 4);
+  view_.levels = std::min(2, mostLevels_);
   builder_->setLevels(view_.levels);
   refined_.resize(builder_->stencil() ? builder_->stencil()->numRefinedVertices() : 0, 3);
   // A brush about two mean edges wide, in scene units.

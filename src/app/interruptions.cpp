@@ -24,7 +24,8 @@ extern "C" void onInterruption(int signal) {
 
 constexpr int kSignals[] = {SIGINT, SIGTERM, SIGHUP};
 struct sigaction previousActions[std::size(kSignals)];
-int alive = 0;  // nesting depth; the main thread makes and ends them
+int alive = 0;           // nesting depth; the main thread makes and ends them
+bool installed = false;  // the handlers are in place (left so after a signal)
 
 }  // namespace
 
@@ -32,6 +33,9 @@ Interruptions::Interruptions() {
   if (alive++ > 0) return;
   caughtSignal = 0;
   signalCount = 0;
+  // Left in place after a signal (below): what was there before them is already saved.
+  if (installed) return;
+  installed = true;
   struct sigaction action {};
   action.sa_handler = onInterruption;
   sigemptyset(&action.sa_mask);
@@ -45,6 +49,7 @@ Interruptions::~Interruptions() {
   if (--alive > 0 || caughtSignal.load() != 0) return;
   for (size_t k = 0; k < std::size(kSignals); ++k)
     ::sigaction(kSignals[k], &previousActions[k], nullptr);
+  installed = false;
 }
 
 int Interruptions::signal() {

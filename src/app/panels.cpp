@@ -459,8 +459,7 @@ void Window::displayPanel(const Snapshot& s) {
       "Kinetic, potential and total energy, |p| and |L| over the last cycles, across the top of "
       "the view.");
   int levels = view_.levels;
-  const int most = affordableLevels(*mesh_, 4);
-  if (ImGui::SliderInt("subdivision", &levels, 0, std::max(most, 0))) {
+  if (ImGui::SliderInt("subdivision", &levels, 0, std::max(mostLevels_, 0))) {
     try {
       builder_->setLevels(levels);
       view_.levels = levels;

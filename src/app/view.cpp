@@ -8,7 +8,7 @@
 namespace zsculpt::app {
 
 int affordableLevels(const Mesh& mesh, int wanted, Index maxRefinedVertices) {
-  // Estimated without building anything (subdivision.h), as the stencil refuses.
+  // Estimated without building the stencil (subdivision.h), as the stencil refuses.
   return levelsWithin(mesh, wanted, static_cast<double>(maxRefinedVertices));
 }
 

@@ -138,6 +138,9 @@ class Window {
   // View.
   render::Camera camera_;
   ViewSettings view_;
+  // The most subdivision levels the Display panel offers for this model: judging its loose
+  // edges (subdivision.h) is not a per-frame cost.
+  int mostLevels_ = 0;
   int fbWidth_ = 1, fbHeight_ = 1, viewWidth_ = 1, viewHeight_ = 1;
   double pixelScale_ = 1.0;  // framebuffer pixels per window coordinate
   int sidebarPixels_ = 0;

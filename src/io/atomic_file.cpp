@@ -332,7 +332,10 @@ void checkOutputFile(const std::string& path) {
     return;
   }
   const fs::path parent = parentOf(target.path);
-  checkFolderCreatable(parent.string(), false);
+  // A folder that is still to be made is probed in the nearest one that exists; one that
+  // exists is probed below with the save's own temporary name.
+  std::error_code missing;
+  checkFolderCreatable(parent.string(), !fs::is_directory(parent.empty() ? "." : parent, missing));
   // access() passes a name too long for the folder and, for root, a folder no file can be
   // made in (/proc): the write failed only after the work. The save's temporary name is the
   // longest name written, so that is what is checked; where the folder exists, a probe file

@@ -47,15 +47,24 @@ void validateMass(const Mesh& control, const VectorX& mass) {
                               std::to_string(mass[i]) + ", which is not positive and finite");
 }
 
-/// Whether points are inside the closed surface made of `triangles`, by the parity of the
-/// crossings of a ray (orientation does not matter: faces wound either way count alike).
-/// The triangles are bucketed by their projection along the ray, so that a query meets only
-/// those its ray can cross. A ray that passes within rounding of a triangle's edge or ends on
-/// one is cast again in another direction; after three such, the point is called outside.
+/// Whether points are inside one of the closed parts of a surface, each part by the parity
+/// of a ray's crossings of its own triangles (orientation does not matter: faces wound either
+/// way count alike; a shell inside another, or two that overlap, each say inside for their
+/// own). The triangles are bucketed by their projection along the ray, so that a query meets
+/// only those its ray can cross; one whose projection spans more than kWideCells cells (a long
+/// thin triangle seen along its length) is kept aside and met by every query, so the grid's
+/// size stays within kWideCells entries a triangle. A ray that passes within rounding of a
+/// triangle's edge, or starts on one, is cast again in another direction; after three such,
+/// the point is called outside.
 class ClosedSurfaceInside {
  public:
-  explicit ClosedSurfaceInside(std::vector<std::array<Vec3, 3>> triangles)
-      : triangles_(std::move(triangles)) {}
+  struct Triangle {
+    std::array<Vec3, 3> corners;
+    Index part = 0;
+  };
+
+  ClosedSurfaceInside(std::vector<Triangle> triangles, Index parts)
+      : triangles_(std::move(triangles)), parity_(static_cast<size_t>(parts), 0) {}
 
   bool inside(const Vec3& point) {
     // Directions of no particular alignment with the axes (a lattice's grid of points and
@@ -65,18 +74,20 @@ class ClosedSurfaceInside {
                                        Vec3(0.7071, -0.2931, 0.6437).normalized()};
     for (size_t k = 0; k < std::size(kDirections); ++k) {
       if (grids_.size() <= k) grids_.push_back(buildGrid(kDirections[k]));
-      const int crossings = countCrossings(grids_[k], point);
-      if (crossings >= 0) return crossings % 2 == 1;
+      if (const int verdict = insideAlong(grids_[k], point); verdict >= 0) return verdict == 1;
     }
     return false;
   }
 
  private:
+  static constexpr Index kWideCells = 64;
+
   struct Grid {
     Vec3 direction, across, up;  // the ray and two directions across it
     double u0 = 0, v0 = 0, cell = 1;
     Index size = 1;
-    CsrIndex buckets;  // triangles per cell
+    CsrIndex buckets;         // triangles per cell
+    std::vector<Index> wide;  // triangles met by every query
   };
 
   Grid buildGrid(const Vec3& direction) const {
@@ -86,8 +97,8 @@ class ClosedSurfaceInside {
     g.up = direction.cross(g.across);
     double u1 = -std::numeric_limits<double>::infinity(), v1 = u1;
     g.u0 = g.v0 = std::numeric_limits<double>::infinity();
-    for (const auto& t : triangles_)
-      for (const Vec3& p : t) {
+    for (const Triangle& t : triangles_)
+      for (const Vec3& p : t.corners) {
         g.u0 = std::min(g.u0, p.dot(g.across));
         u1 = std::max(u1, p.dot(g.across));
         g.v0 = std::min(g.v0, p.dot(g.up));
@@ -100,7 +111,7 @@ class ClosedSurfaceInside {
     std::vector<std::pair<Index, Index>> pairs;
     for (size_t i = 0; i < triangles_.size(); ++i) {
       double lu = std::numeric_limits<double>::infinity(), hu = -lu, lv = lu, hv = -lu;
-      for (const Vec3& p : triangles_[i]) {
+      for (const Vec3& p : triangles_[i].corners) {
         lu = std::min(lu, p.dot(g.across));
         hu = std::max(hu, p.dot(g.across));
         lv = std::min(lv, p.dot(g.up));
@@ -108,6 +119,10 @@ class ClosedSurfaceInside {
       }
       const Index a0 = cellOf(g, lu, g.u0), a1 = cellOf(g, hu, g.u0);
       const Index b0 = cellOf(g, lv, g.v0), b1 = cellOf(g, hv, g.v0);
+      if ((a1 - a0 + 1) * (b1 - b0 + 1) > kWideCells) {
+        g.wide.push_back(static_cast<Index>(i));
+        continue;
+      }
       for (Index a = a0; a <= a1; ++a)
         for (Index b = b0; b <= b1; ++b) pairs.emplace_back(a * g.size + b, static_cast<Index>(i));
     }
@@ -119,38 +134,64 @@ class ClosedSurfaceInside {
     return std::clamp<Index>(static_cast<Index>(std::floor((x - origin) / g.cell)), 0, g.size - 1);
   }
 
-  // Crossings of the ray from `point` (Moeller and Trumbore), or -1 when it grazes an edge.
-  int countCrossings(const Grid& g, const Vec3& point) const {
-    const double u = point.dot(g.across), v = point.dot(g.up);
-    if (u < g.u0 || v < g.v0 || u > g.u0 + g.cell * static_cast<double>(g.size) ||
-        v > g.v0 + g.cell * static_cast<double>(g.size))
-      return 0;
+  // Whether the ray from `point` crosses triangle i (Moeller and Trumbore): 1 or 0, or -1
+  // when it grazes an edge or starts on the triangle.
+  int crosses(const Grid& g, const Vec3& point, Index i) const {
     constexpr double kGraze = 1e-9;
-    int crossings = 0;
-    for (Index i : g.buckets.row(cellOf(g, u, g.u0) * g.size + cellOf(g, v, g.v0))) {
-      const auto& [a, b, c] = triangles_[static_cast<size_t>(i)];
-      const Vec3 e1 = b - a, e2 = c - a, h = g.direction.cross(e2);
-      const double det = e1.dot(h);
-      const double scale = e1.norm() * e2.norm();
-      if (std::abs(det) <= 1e-12 * scale) continue;  // the ray runs along the triangle
-      const Vec3 s = point - a;
-      const double f = 1.0 / det;
-      const double beta = f * s.dot(h);
-      const Vec3 q = s.cross(e1);
-      const double gamma = f * g.direction.dot(q);
-      const double t = f * e2.dot(q);
-      const double alpha = 1.0 - beta - gamma;
-      if (beta < -kGraze || gamma < -kGraze || alpha < -kGraze) continue;
-      if (beta < kGraze || gamma < kGraze || alpha < kGraze) return -1;
-      const double length = std::sqrt(scale);
-      if (std::abs(t) <= kGraze * length) return -1;  // the point is on the surface
-      if (t > 0.0) ++crossings;
-    }
-    return crossings;
+    const auto& [a, b, c] = triangles_[static_cast<size_t>(i)].corners;
+    const Vec3 e1 = b - a, e2 = c - a, h = g.direction.cross(e2);
+    const double det = e1.dot(h);
+    const double scale = e1.norm() * e2.norm();
+    if (std::abs(det) <= 1e-12 * scale) return 0;  // the ray runs along the triangle
+    const Vec3 s = point - a;
+    const double f = 1.0 / det;
+    const double beta = f * s.dot(h);
+    const Vec3 q = s.cross(e1);
+    const double gamma = f * g.direction.dot(q);
+    const double t = f * e2.dot(q);
+    const double alpha = 1.0 - beta - gamma;
+    if (beta < -kGraze || gamma < -kGraze || alpha < -kGraze) return 0;
+    if (beta < kGraze || gamma < kGraze || alpha < kGraze) return -1;
+    if (std::abs(t) <= kGraze * std::sqrt(scale)) return -1;  // the point is on the surface
+    return t > 0.0 ? 1 : 0;
   }
 
-  std::vector<std::array<Vec3, 3>> triangles_;
+  // 1 inside a closed part, 0 outside all, -1 when the ray grazes an edge.
+  int insideAlong(const Grid& g, const Vec3& point) {
+    const double u = point.dot(g.across), v = point.dot(g.up);
+    const bool inGrid = u >= g.u0 && v >= g.v0 &&
+                        u <= g.u0 + g.cell * static_cast<double>(g.size) &&
+                        v <= g.v0 + g.cell * static_cast<double>(g.size);
+    touched_.clear();
+    auto visit = [&](Index i) {
+      const int crossing = crosses(g, point, i);
+      if (crossing < 0) return false;
+      if (crossing > 0) {
+        const Index part = triangles_[static_cast<size_t>(i)].part;
+        if (parity_[static_cast<size_t>(part)] == 0 &&
+            std::find(touched_.begin(), touched_.end(), part) == touched_.end())
+          touched_.push_back(part);
+        parity_[static_cast<size_t>(part)] ^= 1;
+      }
+      return true;
+    };
+    bool clean = true;
+    for (Index i : g.wide) clean = clean && visit(i);
+    if (inGrid && clean)
+      for (Index i : g.buckets.row(cellOf(g, u, g.u0) * g.size + cellOf(g, v, g.v0)))
+        if (!(clean = visit(i))) break;
+    bool odd = false;
+    for (Index part : touched_) {
+      odd = odd || parity_[static_cast<size_t>(part)] != 0;
+      parity_[static_cast<size_t>(part)] = 0;
+    }
+    return !clean ? -1 : odd ? 1 : 0;
+  }
+
+  std::vector<Triangle> triangles_;
   std::vector<Grid> grids_;
+  std::vector<char> parity_;    // per part, during a query
+  std::vector<Index> touched_;  // parts crossed during a query
 };
 
 /// The edges of no face that are curves of their own: all of a curve's, and beside a surface
@@ -168,29 +209,35 @@ std::vector<std::array<Index, 2>> curveEdges(const Mesh& control) {
   const Index nF = control.numFaces();
   const Points& p = control.positions();
   auto position = [&](Index v) { return Vec3(p.row(v).transpose()); };
-  // Closed parts: faces joined across shared edges; a part with a border edge is open.
+  // Closed parts: faces joined across edges of exactly two faces (so that a fin on a solid's
+  // edge is a part of its own, and does not open the solid); a part with a border edge (one
+  // face) is open and has no inside.
   std::vector<Index> parent(static_cast<size_t>(nF));
   auto find = [&](Index x) {
     while (parent[x] != x) x = parent[x] = parent[parent[x]];
     return x;
   };
   for (Index f = 0; f < nF; ++f) parent[f] = f;
-  for (Index e = 0; e < control.numEdges(); ++e) {
-    const auto faces = control.edgeFaces(e);
-    for (size_t k = 1; k < faces.size(); ++k) parent[find(faces[k])] = find(faces[0]);
-  }
+  for (Index e = 0; e < control.numEdges(); ++e)
+    if (const auto faces = control.edgeFaces(e); faces.size() == 2)
+      parent[find(faces[1])] = find(faces[0]);
   std::vector<char> open(static_cast<size_t>(nF), 0);
   for (Index e = 0; e < control.numEdges(); ++e)
     if (control.isBoundaryEdge(e)) open[find(control.edgeFaces(e)[0])] = 1;
-  std::vector<std::array<Vec3, 3>> triangles;
+  std::vector<Index> partOf(static_cast<size_t>(nF), -1);
+  Index parts = 0;
+  std::vector<ClosedSurfaceInside::Triangle> triangles;
   for (Index f = 0; f < nF; ++f) {
-    if (open[find(f)]) continue;
+    const Index root = find(f);
+    if (open[root]) continue;
+    if (partOf[root] < 0) partOf[root] = parts++;
     const auto face = control.face(f);
     for (size_t k = 1; k + 1 < face.size(); ++k)
-      triangles.push_back({position(face[0]), position(face[k]), position(face[k + 1])});
+      triangles.push_back(
+          {{position(face[0]), position(face[k]), position(face[k + 1])}, partOf[root]});
   }
   std::optional<ClosedSurfaceInside> surface;
-  if (!triangles.empty()) surface.emplace(std::move(triangles));
+  if (!triangles.empty()) surface.emplace(std::move(triangles), parts);
   std::erase_if(curves, [&](const std::array<Index, 2>& edge) {
     const auto fa = control.vertexFaces(edge[0]), fb = control.vertexFaces(edge[1]);
     const bool brace = std::any_of(fa.begin(), fa.end(), [&](Index f) {

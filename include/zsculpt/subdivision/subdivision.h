@@ -50,9 +50,10 @@ struct SubdivisionOptions {
 };
 
 /// About how many vertices `levels` levels of the scheme make from `control`, without
-/// building anything: one per face corner at the first level and four times as many at each
-/// later one (exact for a closed mesh), and two per curve edge, doubling (the curves as the
-/// stencil finds them: a solid's inner edges are not curves).
+/// building the stencil (the loose edges are judged as the stencil judges them, a ray test
+/// each beside a closed surface: not a per-frame call): one per face corner at the first level and
+/// four times as many at each later one (exact for a closed mesh), and two per curve edge, doubling
+/// (the curves as the stencil finds them: a solid's inner edges are not curves).
 double estimatedRefinedVertices(const Mesh& control, int levels);
 
 /// The most levels, at most `wanted`, whose estimate stays within `maxRefinedVertices`.
