@@ -732,6 +732,19 @@ TEST(Mixed, ShellsInsideShellsFinsAndThinTrianglesKeepTheirInsides) {
     EXPECT_EQ(curveEdgeCount(Mesh(q, withFin, {{n + 2, n + 3}})), 0);
     EXPECT_EQ(curveEdgeCount(Mesh(q, withFin, {{n + 4, n + 5}})), 3);
   }
+  // A flat box with its top face given twice: the top's edges have three faces, so the
+  // box's other faces are a cup with a rim, and no closed part (a QA pass: the cups'
+  // crossings called a segment below the box inside).
+  {
+    Points q(10, 3);
+    for (Index i = 0; i < 8; ++i) q.row(i) << (i & 1), (i >> 1) & 1, 0.3 * ((i >> 2) & 1);
+    q.row(8) << 0.2, 0.2, -0.2;
+    q.row(9) << 0.25, 0.2, -0.2;
+    const std::vector<std::vector<Index>> box = {{0, 2, 3, 1}, {4, 5, 7, 6}, {0, 1, 5, 4},
+                                                 {1, 3, 7, 5}, {3, 2, 6, 7}, {2, 0, 4, 6},
+                                                 {4, 5, 7, 6}};
+    EXPECT_EQ(curveEdgeCount(Mesh(q, box, {{8, 9}})), 3);
+  }
   // A long thin prism along the ray's plane (its sides are long thin triangles): a segment
   // in it is inside, one beside it outside.
   {

@@ -125,18 +125,17 @@ int runInfo(const ModelOptions& options, bool json) {
     if (loaded.report.degenerateFacesDropped)
       parts.push_back(std::to_string(loaded.report.degenerateFacesDropped) +
                       " degenerate faces dropped");
-    // A point, or a line whose ends weld into one (a zero-length spring), is no spring: it
-    // was dropped without a word (a QA pass).
-    if (loaded.report.pointsAndLinesDropped)
-      parts.push_back(std::to_string(loaded.report.pointsAndLinesDropped) +
-                      (loaded.report.pointsAndLinesDropped == 1
-                           ? " point or zero-length line dropped"
-                           : " points or zero-length lines dropped"));
+    // A vertex that only a point or a line of zero length used (no spring) was dropped
+    // without a word (a QA pass). Points on vertices that faces use lose nothing, and are
+    // not said (zsculpt's own OBJ files list every vertex as a point): their count is in
+    // the JSON.
     if (loaded.report.unusedVerticesDropped)
       parts.push_back(std::to_string(loaded.report.unusedVerticesDropped) +
                       (loaded.report.unusedVerticesDropped == 1
-                           ? " vertex that no face or line uses dropped"
-                           : " vertices that no face or line uses dropped"));
+                           ? " vertex that no face or line uses dropped (a point, or the end of a "
+                             "zero-length line)"
+                           : " vertices that no face or line uses dropped (points, or the ends of "
+                             "zero-length lines)"));
     if (loaded.report.facesReversed)
       parts.push_back(std::to_string(loaded.report.facesReversed) +
                       " faces reversed to wind as their neighbours (a closed sheet outward)");

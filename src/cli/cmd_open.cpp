@@ -134,6 +134,15 @@ int runOpen(const OpenOptions& options) {
   // a path that could never be written.
   for (const std::string* path : {&window.recordPath, &window.stateOut})
     if (!path->empty()) io::checkOutputFile(*path);
+  // And the folder screenshots and a script's log go to (a QA pass: a script ran whole, then
+  // failed on /proc/script_log.json).
+  if (!window.screenshotDir.empty()) {
+    try {
+      io::checkCreatableDirectory(window.screenshotDir);
+    } catch (const Error& e) {
+      throw InvalidInputError(std::string("--screenshot-out: ") + e.what());
+    }
+  }
   checkDistinctOutputs({{"--record", &window.recordPath}, {"--state-out", &window.stateOut}});
   app::SessionSetup setup = makeSetup(options);
   return app::runWindow(std::move(setup), window);

@@ -5,6 +5,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdint>
 #include <cstdio>
 #include <limits>
 #include <optional>
@@ -80,58 +81,109 @@ class ClosedSurfaceInside {
   }
 
  private:
-  static constexpr Index kWideCells = 64;
+  // A triangle that would fill more cells than this is met by every query instead (the
+  // faces of a large box around fine detail).
+  static constexpr std::int64_t kWideCells = 4096;
 
   struct Grid {
     Vec3 direction, across, up;  // the ray and two directions across it
     double u0 = 0, v0 = 0, cell = 1;
-    Index size = 1;
-    CsrIndex buckets;         // triangles per cell
-    std::vector<Index> wide;  // triangles met by every query
+    std::vector<std::pair<std::uint64_t, Index>> entries;  // (cell, triangle), by cell
+    std::vector<Index> wide;                               // triangles met by every query
   };
 
+  static std::uint64_t cellKey(std::int64_t a, std::int64_t b) {
+    return (static_cast<std::uint64_t>(a) << 32) ^ static_cast<std::uint64_t>(b);
+  }
+  // The cell of coordinate x; cells are a median triangle's size, at most 2^30 a side.
+  static std::int64_t cellOf(const Grid& g, double x, double origin) {
+    return static_cast<std::int64_t>(
+        std::clamp(std::floor((x - origin) / g.cell), 0.0, 1073741823.0));
+  }
+
+  // The triangles bucketed by the cells their projection along the ray covers, exactly
+  // (row by row, each row the span of the triangle within that row's strip): a long thin
+  // triangle seen along its length covers a line of cells, not its bounding box's square.
   Grid buildGrid(const Vec3& direction) const {
     Grid g;
     g.direction = direction;
     g.across = direction.cross(Vec3::UnitX()).normalized();
     g.up = direction.cross(g.across);
+    const size_t n = triangles_.size();
+    std::vector<std::array<double, 6>> projected(n);
     double u1 = -std::numeric_limits<double>::infinity(), v1 = u1;
     g.u0 = g.v0 = std::numeric_limits<double>::infinity();
-    for (const Triangle& t : triangles_)
-      for (const Vec3& p : t.corners) {
-        g.u0 = std::min(g.u0, p.dot(g.across));
-        u1 = std::max(u1, p.dot(g.across));
-        g.v0 = std::min(g.v0, p.dot(g.up));
-        v1 = std::max(v1, p.dot(g.up));
+    std::vector<double> sizes;
+    for (size_t i = 0; i < n; ++i) {
+      auto& q = projected[i];
+      for (int k = 0; k < 3; ++k) {
+        q[2 * k] = triangles_[i].corners[k].dot(g.across);
+        q[2 * k + 1] = triangles_[i].corners[k].dot(g.up);
+        g.u0 = std::min(g.u0, q[2 * k]);
+        u1 = std::max(u1, q[2 * k]);
+        g.v0 = std::min(g.v0, q[2 * k + 1]);
+        v1 = std::max(v1, q[2 * k + 1]);
       }
-    g.size = std::clamp<Index>(
-        static_cast<Index>(std::sqrt(static_cast<double>(triangles_.size()))), 1, 1024);
-    g.cell = std::max(std::max(u1 - g.u0, v1 - g.v0) / static_cast<double>(g.size),
-                      std::numeric_limits<double>::min());
-    std::vector<std::pair<Index, Index>> pairs;
-    for (size_t i = 0; i < triangles_.size(); ++i) {
-      double lu = std::numeric_limits<double>::infinity(), hu = -lu, lv = lu, hv = -lu;
-      for (const Vec3& p : triangles_[i].corners) {
-        lu = std::min(lu, p.dot(g.across));
-        hu = std::max(hu, p.dot(g.across));
-        lv = std::min(lv, p.dot(g.up));
-        hv = std::max(hv, p.dot(g.up));
-      }
-      const Index a0 = cellOf(g, lu, g.u0), a1 = cellOf(g, hu, g.u0);
-      const Index b0 = cellOf(g, lv, g.v0), b1 = cellOf(g, hv, g.v0);
-      if ((a1 - a0 + 1) * (b1 - b0 + 1) > kWideCells) {
-        g.wide.push_back(static_cast<Index>(i));
-        continue;
-      }
-      for (Index a = a0; a <= a1; ++a)
-        for (Index b = b0; b <= b1; ++b) pairs.emplace_back(a * g.size + b, static_cast<Index>(i));
+      const double area =
+          0.5 * std::abs((q[2] - q[0]) * (q[5] - q[1]) - (q[4] - q[0]) * (q[3] - q[1]));
+      if (area > 0.0) sizes.push_back(std::sqrt(area));
     }
-    g.buckets = buildCsr(g.size * g.size, pairs);
+    const double extent = std::max({u1 - g.u0, v1 - g.v0, std::numeric_limits<double>::min()});
+    double typical = extent / std::sqrt(static_cast<double>(std::max<size_t>(n, 1)));
+    if (!sizes.empty()) {
+      std::nth_element(sizes.begin(), sizes.begin() + static_cast<std::ptrdiff_t>(sizes.size() / 2),
+                       sizes.end());
+      typical = sizes[sizes.size() / 2];
+    }
+    g.cell = std::max(typical, extent / 1073741824.0);
+    for (size_t i = 0; i < n; ++i) {
+      const auto& q = projected[i];
+      const double lv = std::min({q[1], q[3], q[5]}), hv = std::max({q[1], q[3], q[5]});
+      const double lu = std::min({q[0], q[2], q[4]}), hu = std::max({q[0], q[2], q[4]});
+      const std::int64_t b0 = cellOf(g, lv, g.v0), b1 = cellOf(g, hv, g.v0);
+      const std::int64_t a0 = cellOf(g, lu, g.u0), a1 = cellOf(g, hu, g.u0);
+      // Cells a row at a time, the row's span found from the triangle's part in its strip;
+      // too many and the triangle is met by every query.
+      const size_t first = g.entries.size();
+      bool wide = (b1 - b0 + 1) > kWideCells;
+      for (std::int64_t b = b0; b <= b1 && !wide; ++b) {
+        const double lo = g.v0 + static_cast<double>(b) * g.cell, hi = lo + g.cell;
+        double su = std::numeric_limits<double>::infinity(), eu = -su;
+        for (int k = 0; k < 3; ++k) {
+          const double pu = q[2 * k], pv = q[2 * k + 1];
+          const double qu = q[(2 * k + 2) % 6], qv = q[(2 * k + 3) % 6];
+          double t0 = 0.0, t1 = 1.0;
+          if (pv == qv) {
+            if (pv < lo || pv > hi) continue;
+          } else {
+            const double ta = (lo - pv) / (qv - pv), tb = (hi - pv) / (qv - pv);
+            t0 = std::max(0.0, std::min(ta, tb));
+            t1 = std::min(1.0, std::max(ta, tb));
+            if (t0 > t1) continue;
+          }
+          for (const double t : {t0, t1}) {
+            const double x = pu + t * (qu - pu);
+            su = std::min(su, x);
+            eu = std::max(eu, x);
+          }
+        }
+        if (!(su <= eu)) continue;
+        const std::int64_t sa = std::max(a0, cellOf(g, su, g.u0));
+        const std::int64_t ea = std::min(a1, cellOf(g, eu, g.u0));
+        if (static_cast<std::int64_t>(g.entries.size() - first) + (ea - sa + 1) > kWideCells) {
+          wide = true;
+          break;
+        }
+        for (std::int64_t a = sa; a <= ea; ++a)
+          g.entries.emplace_back(cellKey(a, b), static_cast<Index>(i));
+      }
+      if (wide) {
+        g.entries.resize(first);
+        g.wide.push_back(static_cast<Index>(i));
+      }
+    }
+    std::sort(g.entries.begin(), g.entries.end());
     return g;
-  }
-
-  static Index cellOf(const Grid& g, double x, double origin) {
-    return std::clamp<Index>(static_cast<Index>(std::floor((x - origin) / g.cell)), 0, g.size - 1);
   }
 
   // Whether the ray from `point` crosses triangle i (Moeller and Trumbore): 1 or 0, or -1
@@ -159,9 +211,6 @@ class ClosedSurfaceInside {
   // 1 inside a closed part, 0 outside all, -1 when the ray grazes an edge.
   int insideAlong(const Grid& g, const Vec3& point) {
     const double u = point.dot(g.across), v = point.dot(g.up);
-    const bool inGrid = u >= g.u0 && v >= g.v0 &&
-                        u <= g.u0 + g.cell * static_cast<double>(g.size) &&
-                        v <= g.v0 + g.cell * static_cast<double>(g.size);
     touched_.clear();
     auto visit = [&](Index i) {
       const int crossing = crosses(g, point, i);
@@ -177,9 +226,13 @@ class ClosedSurfaceInside {
     };
     bool clean = true;
     for (Index i : g.wide) clean = clean && visit(i);
-    if (inGrid && clean)
-      for (Index i : g.buckets.row(cellOf(g, u, g.u0) * g.size + cellOf(g, v, g.v0)))
-        if (!(clean = visit(i))) break;
+    if (clean && u >= g.u0 && v >= g.v0) {
+      const std::uint64_t key = cellKey(cellOf(g, u, g.u0), cellOf(g, v, g.v0));
+      auto it = std::lower_bound(g.entries.begin(), g.entries.end(),
+                                 std::pair<std::uint64_t, Index>(key, 0));
+      for (; it != g.entries.end() && it->first == key; ++it)
+        if (!(clean = visit(it->second))) break;
+    }
     bool odd = false;
     for (Index part : touched_) {
       odd = odd || parity_[static_cast<size_t>(part)] != 0;
@@ -221,9 +274,25 @@ std::vector<std::array<Index, 2>> curveEdges(const Mesh& control) {
   for (Index e = 0; e < control.numEdges(); ++e)
     if (const auto faces = control.edgeFaces(e); faces.size() == 2)
       parent[find(faces[1])] = find(faces[0]);
+  // A part is closed when each of its edges has exactly two of its faces: a border (one),
+  // or a rim where a brim or a repeated face meets it (a box cut in two cups along a loop of
+  // edges of three faces), opens it (a QA pass: the cups' crossings made a hair far outside
+  // the box "inside").
   std::vector<char> open(static_cast<size_t>(nF), 0);
-  for (Index e = 0; e < control.numEdges(); ++e)
-    if (control.isBoundaryEdge(e)) open[find(control.edgeFaces(e)[0])] = 1;
+  std::vector<Index> roots;
+  for (Index e = 0; e < control.numEdges(); ++e) {
+    const auto faces = control.edgeFaces(e);
+    if (faces.empty() || faces.size() == 2) continue;  // a wire, or two faces of one part
+    roots.clear();
+    for (Index f : faces) roots.push_back(find(f));
+    std::sort(roots.begin(), roots.end());
+    for (size_t k = 0; k < roots.size();) {
+      size_t end = k;
+      while (end < roots.size() && roots[end] == roots[k]) ++end;
+      if (end - k != 2) open[roots[k]] = 1;
+      k = end;
+    }
+  }
   std::vector<Index> partOf(static_cast<size_t>(nF), -1);
   Index parts = 0;
   std::vector<ClosedSurfaceInside::Triangle> triangles;
