@@ -682,6 +682,17 @@ TEST(Mixed, LooseEdgesAreCurvesOutsideAClosedSurfaceAndASolidsInsideOrBracesWith
     p(6, 2) = bend;
     EXPECT_EQ(curveEdgeCount(Mesh(p, facesOf(sheet), {{0, 6}, {1, 5}})), 0) << bend;
   }
+  // Far from the origin and small (a review: the projections lost the digits the cells
+  // need): the same verdicts.
+  for (const double offset : {1e4, 1e7}) {
+    Points far = hairLast.positions();
+    for (Index v = 0; v < far.rows(); ++v)
+      far.row(v) = (1e-3 * far.row(v).array() + offset).matrix();
+    std::vector<std::array<Index, 2>> loose;
+    for (Index e = 0; e < hairLast.numEdges(); ++e)
+      if (hairLast.isWireEdge(e)) loose.push_back(hairLast.edge(e));
+    EXPECT_EQ(curveEdgeCount(Mesh(far, facesOf(hairLast), loose)), 2) << offset;
+  }
   // The estimate counts the curves the stencil makes: a lattice's inner edges are not.
   const Mesh big = makeLattice(6);
   EXPECT_EQ(estimatedRefinedVertices(big, 2),

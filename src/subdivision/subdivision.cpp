@@ -51,12 +51,13 @@ void validateMass(const Mesh& control, const VectorX& mass) {
 /// Whether points are inside one of the closed parts of a surface, each part by the parity
 /// of a ray's crossings of its own triangles (orientation does not matter: faces wound either
 /// way count alike; a shell inside another, or two that overlap, each say inside for their
-/// own). The triangles are bucketed by their projection along the ray, so that a query meets
-/// only those its ray can cross; one whose projection spans more than kWideCells cells (a long
-/// thin triangle seen along its length) is kept aside and met by every query, so the grid's
-/// size stays within kWideCells entries a triangle. A ray that passes within rounding of a
-/// triangle's edge, or starts on one, is cast again in another direction; after three such,
-/// the point is called outside.
+/// own). The triangles are bucketed by the cells of a sparse grid across the ray that their
+/// projection covers, row by row (a long thin triangle covers a line of cells), the cells a
+/// median triangle's size, coarser while the entries pass kEntriesPerTriangle a triangle; a
+/// triangle that would cover more than kWideCells cells (a face of a large box around fine
+/// detail) is met by every query instead. A ray that passes within rounding of a triangle's edge,
+/// or starts on one, is cast again in another direction; after three such, the point is called
+/// outside.
 class ClosedSurfaceInside {
  public:
   struct Triangle {
@@ -64,8 +65,10 @@ class ClosedSurfaceInside {
     Index part = 0;
   };
 
-  ClosedSurfaceInside(std::vector<Triangle> triangles, Index parts)
-      : triangles_(std::move(triangles)), parity_(static_cast<size_t>(parts), 0) {}
+  /// `centre`: a point near the triangles, subtracted before projecting (coordinates far
+  /// from the origin would otherwise lose the digits the cells need).
+  ClosedSurfaceInside(std::vector<Triangle> triangles, Index parts, const Vec3& centre)
+      : triangles_(std::move(triangles)), centre_(centre), parity_(static_cast<size_t>(parts), 0) {}
 
   bool inside(const Vec3& point) {
     // Directions of no particular alignment with the axes (a lattice's grid of points and
@@ -81,9 +84,14 @@ class ClosedSurfaceInside {
   }
 
  private:
-  // A triangle that would fill more cells than this is met by every query instead (the
-  // faces of a large box around fine detail).
   static constexpr std::int64_t kWideCells = 4096;
+  // Cells are made coarser while the entries pass this many a triangle (two sizes of
+  // triangle, the large ones each covering thousands of the small ones' cells).
+  static constexpr std::int64_t kEntriesPerTriangle = 64;
+  static constexpr double kLastCell = 1073741823.0;  // 2^30 - 1 cells a side at most
+  // Spans and rows padded by this share of a cell, so that a point on a boundary, rounded
+  // either way, finds the triangles on both sides.
+  static constexpr double kPad = 1e-6;
 
   struct Grid {
     Vec3 direction, across, up;  // the ray and two directions across it
@@ -95,15 +103,12 @@ class ClosedSurfaceInside {
   static std::uint64_t cellKey(std::int64_t a, std::int64_t b) {
     return (static_cast<std::uint64_t>(a) << 32) ^ static_cast<std::uint64_t>(b);
   }
-  // The cell of coordinate x; cells are a median triangle's size, at most 2^30 a side.
-  static std::int64_t cellOf(const Grid& g, double x, double origin) {
-    return static_cast<std::int64_t>(
-        std::clamp(std::floor((x - origin) / g.cell), 0.0, 1073741823.0));
+  // Coordinates in cells (from the grid's corner); the cell of such a coordinate.
+  static double inCells(const Grid& g, double x, double origin) { return (x - origin) / g.cell; }
+  static std::int64_t cellOf(double x) {
+    return static_cast<std::int64_t>(std::clamp(std::floor(x), 0.0, kLastCell));
   }
 
-  // The triangles bucketed by the cells their projection along the ray covers, exactly
-  // (row by row, each row the span of the triangle within that row's strip): a long thin
-  // triangle seen along its length covers a line of cells, not its bounding box's square.
   Grid buildGrid(const Vec3& direction) const {
     Grid g;
     g.direction = direction;
@@ -117,8 +122,9 @@ class ClosedSurfaceInside {
     for (size_t i = 0; i < n; ++i) {
       auto& q = projected[i];
       for (int k = 0; k < 3; ++k) {
-        q[2 * k] = triangles_[i].corners[k].dot(g.across);
-        q[2 * k + 1] = triangles_[i].corners[k].dot(g.up);
+        const Vec3 c = triangles_[i].corners[static_cast<size_t>(k)] - centre_;
+        q[2 * k] = c.dot(g.across);
+        q[2 * k + 1] = c.dot(g.up);
         g.u0 = std::min(g.u0, q[2 * k]);
         u1 = std::max(u1, q[2 * k]);
         g.v0 = std::min(g.v0, q[2 * k + 1]);
@@ -133,21 +139,39 @@ class ClosedSurfaceInside {
     if (!sizes.empty()) {
       std::nth_element(sizes.begin(), sizes.begin() + static_cast<std::ptrdiff_t>(sizes.size() / 2),
                        sizes.end());
-      typical = sizes[sizes.size() / 2];
+      typical = std::max(typical * 1e-3, sizes[sizes.size() / 2]);
     }
-    g.cell = std::max(typical, extent / 1073741824.0);
-    for (size_t i = 0; i < n; ++i) {
-      const auto& q = projected[i];
+    g.cell = std::max(typical, extent / kLastCell);
+    const std::int64_t budget =
+        kEntriesPerTriangle * static_cast<std::int64_t>(std::max<size_t>(n, 1));
+    // (At a cell the size of the whole, every triangle covers at most four cells.)
+    while (
+        !fill(g, projected, g.cell >= extent ? std::numeric_limits<std::int64_t>::max() : budget))
+      g.cell *= 4.0;
+    std::sort(g.entries.begin(), g.entries.end());
+    return g;
+  }
+
+  // Buckets every triangle at g.cell; false, with nothing kept, past `budget` entries.
+  bool fill(Grid& g, const std::vector<std::array<double, 6>>& projected,
+            std::int64_t budget) const {
+    g.entries.clear();
+    g.wide.clear();
+    for (size_t i = 0; i < projected.size(); ++i) {
+      std::array<double, 6> q = projected[i];  // in cells
+      for (int k = 0; k < 3; ++k) {
+        q[2 * k] = inCells(g, q[2 * k], g.u0);
+        q[2 * k + 1] = inCells(g, q[2 * k + 1], g.v0);
+      }
       const double lv = std::min({q[1], q[3], q[5]}), hv = std::max({q[1], q[3], q[5]});
       const double lu = std::min({q[0], q[2], q[4]}), hu = std::max({q[0], q[2], q[4]});
-      const std::int64_t b0 = cellOf(g, lv, g.v0), b1 = cellOf(g, hv, g.v0);
-      const std::int64_t a0 = cellOf(g, lu, g.u0), a1 = cellOf(g, hu, g.u0);
-      // Cells a row at a time, the row's span found from the triangle's part in its strip;
-      // too many and the triangle is met by every query.
+      const std::int64_t b0 = cellOf(lv - kPad), b1 = cellOf(hv + kPad);
+      const std::int64_t a0 = cellOf(lu - kPad), a1 = cellOf(hu + kPad);
       const size_t first = g.entries.size();
-      bool wide = (b1 - b0 + 1) > kWideCells;
+      bool wide = b1 - b0 + 1 > kWideCells;
+      // A row at a time: the u-span of the triangle's part within the row's strip [b, b+1].
       for (std::int64_t b = b0; b <= b1 && !wide; ++b) {
-        const double lo = g.v0 + static_cast<double>(b) * g.cell, hi = lo + g.cell;
+        const double lo = static_cast<double>(b) - kPad, hi = static_cast<double>(b + 1) + kPad;
         double su = std::numeric_limits<double>::infinity(), eu = -su;
         for (int k = 0; k < 3; ++k) {
           const double pu = q[2 * k], pv = q[2 * k + 1];
@@ -168,8 +192,8 @@ class ClosedSurfaceInside {
           }
         }
         if (!(su <= eu)) continue;
-        const std::int64_t sa = std::max(a0, cellOf(g, su, g.u0));
-        const std::int64_t ea = std::min(a1, cellOf(g, eu, g.u0));
+        const std::int64_t sa = std::max(a0, cellOf(su - kPad));
+        const std::int64_t ea = std::min(a1, cellOf(eu + kPad));
         if (static_cast<std::int64_t>(g.entries.size() - first) + (ea - sa + 1) > kWideCells) {
           wide = true;
           break;
@@ -181,9 +205,9 @@ class ClosedSurfaceInside {
         g.entries.resize(first);
         g.wide.push_back(static_cast<Index>(i));
       }
+      if (static_cast<std::int64_t>(g.entries.size()) > budget) return false;
     }
-    std::sort(g.entries.begin(), g.entries.end());
-    return g;
+    return true;
   }
 
   // Whether the ray from `point` crosses triangle i (Moeller and Trumbore): 1 or 0, or -1
@@ -210,7 +234,8 @@ class ClosedSurfaceInside {
 
   // 1 inside a closed part, 0 outside all, -1 when the ray grazes an edge.
   int insideAlong(const Grid& g, const Vec3& point) {
-    const double u = point.dot(g.across), v = point.dot(g.up);
+    const double u = inCells(g, (point - centre_).dot(g.across), g.u0);
+    const double v = inCells(g, (point - centre_).dot(g.up), g.v0);
     touched_.clear();
     auto visit = [&](Index i) {
       const int crossing = crosses(g, point, i);
@@ -226,8 +251,8 @@ class ClosedSurfaceInside {
     };
     bool clean = true;
     for (Index i : g.wide) clean = clean && visit(i);
-    if (clean && u >= g.u0 && v >= g.v0) {
-      const std::uint64_t key = cellKey(cellOf(g, u, g.u0), cellOf(g, v, g.v0));
+    if (clean && u >= -kPad && v >= -kPad && u <= kLastCell && v <= kLastCell) {
+      const std::uint64_t key = cellKey(cellOf(u), cellOf(v));
       auto it = std::lower_bound(g.entries.begin(), g.entries.end(),
                                  std::pair<std::uint64_t, Index>(key, 0));
       for (; it != g.entries.end() && it->first == key; ++it)
@@ -242,6 +267,7 @@ class ClosedSurfaceInside {
   }
 
   std::vector<Triangle> triangles_;
+  Vec3 centre_;
   std::vector<Grid> grids_;
   std::vector<char> parity_;    // per part, during a query
   std::vector<Index> touched_;  // parts crossed during a query
@@ -289,7 +315,7 @@ std::vector<std::array<Index, 2>> curveEdges(const Mesh& control) {
     for (size_t k = 0; k < roots.size();) {
       size_t end = k;
       while (end < roots.size() && roots[end] == roots[k]) ++end;
-      if (end - k != 2) open[roots[k]] = 1;
+      if ((end - k) % 2 != 0) open[roots[k]] = 1;  // parity needs an even count
       k = end;
     }
   }
@@ -301,12 +327,18 @@ std::vector<std::array<Index, 2>> curveEdges(const Mesh& control) {
     if (open[root]) continue;
     if (partOf[root] < 0) partOf[root] = parts++;
     const auto face = control.face(f);
-    for (size_t k = 1; k + 1 < face.size(); ++k)
-      triangles.push_back(
-          {{position(face[0]), position(face[k]), position(face[k + 1])}, partOf[root]});
+    for (size_t k = 1; k + 1 < face.size(); ++k) {
+      const Vec3 a = position(face[0]), b = position(face[k]), c = position(face[k + 1]);
+      // A sliver of collinear corners (an n-gon's fan) no ray crosses: kept out of the grid.
+      if ((b - a).cross(c - a).norm() <= 1e-12 * (b - a).norm() * (c - a).norm()) continue;
+      triangles.push_back({{a, b, c}, partOf[root]});
+    }
   }
   std::optional<ClosedSurfaceInside> surface;
-  if (!triangles.empty()) surface.emplace(std::move(triangles), parts);
+  const BoundingBox box = control.boundingBox();
+  // Coordinates near the largest doubles would overflow the grid's arithmetic: no inside.
+  if (!triangles.empty() && std::isfinite(box.diagonal()))
+    surface.emplace(std::move(triangles), parts, box.center());
   std::erase_if(curves, [&](const std::array<Index, 2>& edge) {
     const auto fa = control.vertexFaces(edge[0]), fb = control.vertexFaces(edge[1]);
     const bool brace = std::any_of(fa.begin(), fa.end(), [&](Index f) {
