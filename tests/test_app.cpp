@@ -2167,6 +2167,25 @@ TEST(Window, AWindowStartedUnderNohupOutlivesItsTerminalsHangUp) {
   fs::remove_all(dir);
 }
 
+TEST(Window, ASignalWhileTheModelLoadsClosesTheWindowAsItOpens) {
+  // A signal during a large model's load ended the process by its default action: no
+  // message, no --state-out (a QA pass). It is noted from the start of `open`.
+  ZSCULPT_SKIP_WITHOUT_WINDOW();
+  const fs::path dir = tempDir("window_load_signal");
+  const fs::path state = dir / "state.csv", rc = dir / "rc.txt";
+  const std::string inner =
+      std::string(ZSCULPT_BINARY) + " open builtin:torus:500:500 --state-out " + state.string() +
+      " & pid=$!; sleep 0.3; kill -TERM $pid; wait $pid; echo $? > " + rc.string();
+  const std::string command = "timeout 120 xvfb-run -a -s \"-screen 0 1280x800x24\" sh -c '" +
+                              inner + "' > " + (dir / "log.txt").string() + " 2>&1";
+  ASSERT_EQ(std::system(command.c_str()), 0) << readText(dir / "log.txt");
+  EXPECT_EQ(readText(rc), "143\n") << readText(dir / "log.txt");
+  EXPECT_NE(readText(dir / "log.txt").find("zsculpt: closing on signal 15"), std::string::npos)
+      << readText(dir / "log.txt");
+  EXPECT_TRUE(fs::exists(state));
+  fs::remove_all(dir);
+}
+
 TEST(Window, ATerminatedSessionStillWritesItsRecordingAndState) {
   // SIGTERM (a closed terminal, a job killed by a pipeline) ended the window where it stood:
   // the recording and --state-out the command line asked for were lost. The window now closes

@@ -144,6 +144,10 @@ int runOpen(const OpenOptions& options) {
     }
   }
   checkDistinctOutputs({{"--record", &window.recordPath}, {"--state-out", &window.stateOut}});
+  // From before the model loads (a large import takes seconds): a signal then ended the
+  // process by its default action, without the recording and --state-out. Now it is noted,
+  // and the window closes as soon as it opens, writing them (a QA pass).
+  const Interruptions signals;
   app::SessionSetup setup = makeSetup(options);
   return app::runWindow(std::move(setup), window);
 }
