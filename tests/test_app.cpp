@@ -210,6 +210,30 @@ TEST(Session, BadCommandsChangeNothing) {
   bad.value = -1.0;
   EXPECT_THROW(session.apply(Edit{editing::Dab{bad, editing::BrushCentre::atVertex(0)}}),
                InvalidInputError);
+  // Stiffness within its range whose T_max takes the time step out of the stepper's: the
+  // edit was in before the step refused it, and stayed, unrecorded (a QA pass).
+  const VectorX stiffness = session.model().properties.stiffness;
+  const double period = session.simulation().period();
+  const double tMax = session.tMax();
+  editing::Brush stiff;
+  stiff.property = Property::Stiffness;
+  stiff.value = 1e300;
+  stiff.radius = 100.0;  // the whole grid: an edge takes the harmonic mean of its ends
+  stiff.strength = 1.0;
+  for (const editing::EditCommand& edit :
+       {editing::EditCommand{editing::GlobalEdit{stiff}},
+        editing::EditCommand{editing::Dab{stiff, editing::BrushCentre::atVertex(0)}}}) {
+    try {
+      session.apply(Edit{edit});
+      ADD_FAILURE() << "stiffness 1e300 was taken";
+    } catch (const InvalidInputError& e) {
+      EXPECT_NE(std::string(e.what()).find("the edit would lower T_max"), std::string::npos)
+          << e.what();
+    }
+  }
+  EXPECT_TRUE(session.model().properties.stiffness == stiffness);
+  EXPECT_EQ(session.simulation().period(), period);
+  EXPECT_EQ(session.tMax(), tMax);
   EXPECT_TRUE(sameBits(session.state().position, before.position));
   EXPECT_TRUE(sameBits(session.state().velocity, before.velocity));
   EXPECT_EQ(session.editor().undoDepth(), undo);
@@ -1710,6 +1734,41 @@ TEST(Window, APressOnABoundaryVertexTakesIt) {
   fs::remove_all(dir);
 }
 
+TEST(Window, AColourRangeBackwardsOrEmptyAndAScreenshotNameWithAFolderAreRefused) {
+  // A QA pass: [50, 0] drew a legend of 2.5 over 47.5 (rigidity 0 drawn as the top colour),
+  // and [0, 0] one of -1 .. 1 for damping, which is never negative.
+  ZSCULPT_SKIP_WITHOUT_WINDOW();
+  const fs::path dir = tempDir("window_bad_range");
+  {
+    std::ofstream script(dir / "range.jsonl");
+    script << R"({"ui": "display", "property": "rigidity", "range": [50, 0]})"
+           << "\n"
+           << R"({"ui": "display", "property": "damping", "range": [0, 0]})"
+           << "\n"
+           << R"({"ui": "display", "property": "mass", "range": [0, 1]})"
+           << "\n"
+           << R"({"ui": "screenshot", "name": "../escape", "what": "model"})"
+           << "\n"
+           << R"({"ui": "screenshot", "name": "", "what": "model"})"
+           << "\n"
+           << R"({"ui": "quit"})"
+           << "\n";
+  }
+  ASSERT_EQ(runWindowScript("builtin:grid:6", dir / "range.jsonl", dir), 0)
+      << readText(dir / "log.txt");
+  const ScriptLog script = readScriptLog(dir);
+  ASSERT_EQ(script.errors.size(), 4u) << script.entries.dump();
+  for (size_t k = 0; k < 2; ++k)
+    EXPECT_NE(script.errors[k].find("must be finite and go from low to high"), std::string::npos)
+        << script.errors[k];
+  // And a screenshot's name is a file name in the screenshot folder, nowhere else.
+  for (size_t k = 2; k < 4; ++k)
+    EXPECT_NE(script.errors[k].find("a file name without a folder"), std::string::npos)
+        << script.errors[k];
+  EXPECT_FALSE(fs::exists(dir.parent_path() / "escape.png"));
+  fs::remove_all(dir);
+}
+
 TEST(Window, APausedWaitIsSkippedAndPaintingShowsWhatItPaints) {
   // A script starts paused. A wait for a time or a cycle before any play waited for ever (the
   // run had to be killed); each is now a logged error and the script goes on, and a wait after
@@ -1868,6 +1927,11 @@ TEST(PlotSeries, TimeGoingBackDropsOnlyTheSamplesAfterIt) {
   plots.push(d, 0.0);
   EXPECT_EQ(plots.count, 1);
   EXPECT_EQ(plots.time[static_cast<size_t>(plots.at(0))], 0.0);
+  // A second Reset: the sample at t = 0 is the new run's, not the old one's beside it.
+  d.kinetic = 7.0;
+  plots.push(d, 0.0);
+  EXPECT_EQ(plots.count, 1);
+  EXPECT_EQ(plots.kinetic[static_cast<size_t>(plots.at(0))], 7.0f);
 }
 
 TEST(Window, ThePlotsStayInTheViewOfANarrowWindow) {

@@ -1065,9 +1065,15 @@ void Window::stepScript() {
           builder_->setLevels(view_.levels);
         }
         if (j.contains("range")) {
+          // [50, 0] drew a legend of 2.5 over 47.5 and [0, 0] one of -1 .. 1 (a QA pass).
+          const double low = j.at("range").at(0).get<double>();
+          const double high = j.at("range").at(1).get<double>();
+          if (!std::isfinite(low) || !std::isfinite(high) || !(low < high))
+            throw InvalidInputError("range: [" + std::to_string(low) + ", " + std::to_string(high) +
+                                    "] must be finite and go from low to high");
           view_.autoRange = false;
-          view_.rangeMin = j.at("range")[0].get<double>();
-          view_.rangeMax = j.at("range")[1].get<double>();
+          view_.rangeMin = low;
+          view_.rangeMax = high;
         }
         if (j.contains("wireframe")) view_.wireframe = j.at("wireframe").get<bool>();
         if (j.contains("points")) view_.points = j.at("points").get<bool>();
@@ -1113,6 +1119,11 @@ void Window::stepScript() {
         return;
       } else if (action == "screenshot") {
         const std::string name = j.value("name", "script_" + std::to_string(line));
+        // A name, not a path: "../../escape" wrote outside the screenshot folder, "" a
+        // hidden ".png" (a QA pass).
+        if (name.empty() || name.find('/') != std::string::npos || name == "." || name == "..")
+          throw InvalidInputError("screenshot: name \"" + name +
+                                  "\": a file name without a folder, not empty");
         const std::string what = j.value("what", std::string("both"));
         if (what == "window") {
           // Only the window with its panels, as NAME.png (for documentation).

@@ -5,7 +5,9 @@
 namespace zsculpt::app {
 
 void PlotSeries::push(const Diagnostics& d, double t) {
-  while (count > 0 && time[static_cast<size_t>(at(count - 1))] > t) {
+  // Samples at `t` or after it go: after a Reset the old run's first sample, at t = 0 like
+  // the new run's, stayed and drew a spike that never happened (a QA pass).
+  while (count > 0 && time[static_cast<size_t>(at(count - 1))] >= t) {
     next = (next + kSize - 1) % kSize;
     --count;
   }

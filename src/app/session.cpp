@@ -336,12 +336,27 @@ void Session::apply(const Command& command) {
                      whole = r.wholeModel;
                      rows.assign(r.matrixRows.begin(), r.matrixRows.end());
                      update();
+                     // The time step the edit would bring (the same share of the new T_max)
+                     // must be one the stepper takes: stiffness painted to 1e300 was refused
+                     // by the step's range after the values were in, so the "refused" edit
+                     // stayed, unrecorded, and the replay differed (a QA pass).
+                     refreshLimits();
+                     const double wanted = periodFraction_ * tMax_;
+                     if (std::isfinite(wanted) && wanted > 0.0 && sim_->period() > wanted) {
+                       std::ostringstream why;
+                       why.precision(4);
+                       why << "time step (the edit would lower T_max to " << tMax_ << " s)";
+                       checkPeriodRange(wanted, why.str());
+                     }
                    };
                    editing::EditResult result;
                    try {
                      result = editor_.apply(target, sim_->state(), e.command, accept);
                    } catch (...) {
-                     if (whole || !rows.empty()) update();
+                     if (whole || !rows.empty()) {
+                       update();
+                       refreshLimits();
+                     }
                      throw;
                    }
                    if (!result.changed) return;

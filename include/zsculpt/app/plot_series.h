@@ -15,7 +15,7 @@ struct PlotSeries {
   int count = 0;                     ///< samples held, at most kSize
   int next = 0;  ///< where the next sample goes; the samples are the count before it
   /// Adds a sample at simulated time `t`. Time going back (Reset, a rollback after a
-  /// divergence) first drops the samples after `t`, so that no curve joins two timelines; a
+  /// divergence) first drops the samples at and after `t`, so that no curve joins two timelines; a
   /// rollback keeps the run up to the state it went back to.
   void push(const Diagnostics& d, double t);
   void clear() { count = next = 0; }
