@@ -361,8 +361,7 @@ void Session::apply(const Command& command) {
                    }
                    if (!result.changed) return;
                    guard_->editChangedEnergy();  // a property edit changes the stored energy
-                   refreshLimits();
-                   keepPeriodFraction();
+                   keepPeriodFraction();         // the limits were refreshed in `accept`
                    unsaved_ = true;
                  },
                  [&](const AddLoad& l) {

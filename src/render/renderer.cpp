@@ -200,7 +200,6 @@ struct Renderer::Impl {
   Index gpuVertexCount = 0;  // surfaceVertexCount plus the extra fan vertices
   const CsrIndex* surfaceFaces = nullptr;
   const CsrIndex* surfaceNeighbors = nullptr;
-  CsrIndex refinedNeighbors;
   // Closed, consistently oriented surfaces never show their back faces: culling them
   // halves llvmpipe's work on a 100k-face frame. 0: no culling, else GL_BACK or GL_FRONT
   // (faces wound inwards).
@@ -668,27 +667,10 @@ struct Renderer::Impl {
       controlEdges.push_back(static_cast<std::uint32_t>(e[1]));
     }
 
-    // Neighbour table of the refined mesh for best-plane normals.
-    if (stencil != nullptr) {
-      // A curve's edge (the last numRefinedCurveEdges) joins the ring of its vertices that
-      // are on no face only: a border corner that a curve leaves keeps its surface's normal.
-      std::vector<char> onFace(static_cast<size_t>(n), 0);
-      for (Index v : surfaceFaces->indices) onFace[static_cast<size_t>(v)] = 1;
-      const size_t firstCurve =
-          surfaceEdges.size() - static_cast<size_t>(stencil->numRefinedCurveEdges());
-      std::vector<std::pair<Index, Index>> pairs;
-      pairs.reserve(surfaceEdges.size() * 2);
-      for (size_t k = 0; k < surfaceEdges.size(); ++k) {
-        const auto& e = surfaceEdges[k];
-        const bool curve = k >= firstCurve;
-        if (!curve || !onFace[static_cast<size_t>(e[0])]) pairs.emplace_back(e[0], e[1]);
-        if (!curve || !onFace[static_cast<size_t>(e[1])]) pairs.emplace_back(e[1], e[0]);
-      }
-      refinedNeighbors = buildCsr(n, pairs);
-      surfaceNeighbors = &refinedNeighbors;
-    } else {
-      surfaceNeighbors = &mesh.vertexNeighborTable();
-    }
+    // Neighbour table for best-plane normals: the stencil's (a vertex on a face has its ring
+    // through the faces, a curve's own vertex along the curve), as its faces are kept.
+    surfaceNeighbors =
+        stencil != nullptr ? &stencil->refinedVertexNeighbors() : &mesh.vertexNeighborTable();
 
     // CPU scratch for the per-frame path.
     refined.resize(stencil != nullptr ? n : 0, 3);

@@ -205,14 +205,10 @@ LevelStep refineLevel(const LevelTopology& topology, const VectorX* mass, bool i
   // edges start is a corner on a border (the curves join its copy) and a curve end inside
   // the surface (the curves start on it, its V-face interpolates it as before).
   const Index firstCopy = nC + 2 * nE;
-  // Feature edges of the faces at v (the curve edges are numbered after them).
-  auto surfaceFeatureCount = [&](Index v) {
-    const auto row = vertexFeatures.row(v);
-    return static_cast<Index>(
-        std::count_if(row.begin(), row.end(), [&](Index e) { return e < nSurfaceFeatures; }));
-  };
+  // Feature edges of the faces at each vertex (the curve edges are numbered after them).
   std::vector<Index> surfaceFeatures(static_cast<size_t>(nV), 0);
-  for (Index v = 0; v < nV; ++v) surfaceFeatures[v] = surfaceFeatureCount(v);
+  for (Index e = 0; e < nSurfaceFeatures; ++e)
+    for (Index v : step.featureEdges[e]) ++surfaceFeatures[v];
   std::vector<char> corner(static_cast<size_t>(nV), 0);
   std::vector<char> pinned(static_cast<size_t>(nV), 0);
   std::vector<char> curveEnd(static_cast<size_t>(nV), 0);

@@ -48,6 +48,32 @@ void validateMass(const Mesh& control, const VectorX& mass) {
                               std::to_string(mass[i]) + ", which is not positive and finite");
 }
 
+/// Disjoint sets over 0 .. n-1 (path halving); a union keeps the smaller root, so that each
+/// set's root is its first member.
+class UnionFind {
+ public:
+  explicit UnionFind(Index n) : parent_(static_cast<size_t>(n)) {
+    for (Index i = 0; i < n; ++i) parent_[static_cast<size_t>(i)] = i;
+  }
+  Index find(Index x) {
+    while (parent_[static_cast<size_t>(x)] != x)
+      x = parent_[static_cast<size_t>(x)] =
+          parent_[static_cast<size_t>(parent_[static_cast<size_t>(x)])];
+    return x;
+  }
+  /// Joins the sets of a and b; false when they were one already.
+  bool unite(Index a, Index b) {
+    a = find(a);
+    b = find(b);
+    if (a == b) return false;
+    parent_[static_cast<size_t>(std::max(a, b))] = std::min(a, b);
+    return true;
+  }
+
+ private:
+  std::vector<Index> parent_;
+};
+
 /// Whether points are inside one of the closed parts of a surface, each part by the parity
 /// of a ray's crossings of its own triangles (orientation does not matter: faces wound either
 /// way count alike; a shell inside another, or two that overlap, each say inside for their
@@ -291,15 +317,11 @@ std::vector<std::array<Index, 2>> curveEdges(const Mesh& control) {
   // Closed parts: faces joined across edges of exactly two faces (so that a fin on a solid's
   // edge is a part of its own, and does not open the solid); a part with a border edge (one
   // face) is open and has no inside.
-  std::vector<Index> parent(static_cast<size_t>(nF));
-  auto find = [&](Index x) {
-    while (parent[x] != x) x = parent[x] = parent[parent[x]];
-    return x;
-  };
-  for (Index f = 0; f < nF; ++f) parent[f] = f;
+  UnionFind partsOf(nF);
+  auto find = [&](Index f) { return partsOf.find(f); };
   for (Index e = 0; e < control.numEdges(); ++e)
     if (const auto faces = control.edgeFaces(e); faces.size() == 2)
-      parent[find(faces[1])] = find(faces[0]);
+      partsOf.unite(faces[0], faces[1]);
   // A part is closed when each of its edges has exactly two of its faces: a border (one),
   // or a rim where a brim or a repeated face meets it (a box cut in two cups along a loop of
   // edges of three faces), opens it (a QA pass: the cups' crossings made a hair far outside
@@ -349,16 +371,21 @@ std::vector<std::array<Index, 2>> curveEdges(const Mesh& control) {
   return curves;
 }
 
-}  // namespace
-
-namespace {
-
 /// One per face corner at the first level and four times as many at each later one, and two
 /// per curve edge, doubling.
 double estimateFor(const Mesh& control, double curveEdgeCount, int levels) {
   if (levels <= 0) return static_cast<double>(control.numVertices());
   const double corners = static_cast<double>(control.faces().indices.size());
   return corners * std::pow(4.0, levels - 1) + 2.0 * curveEdgeCount * std::pow(2.0, levels - 1);
+}
+
+/// The most levels, at most `wanted`, whose estimate stays within the budget.
+int levelsWithinFor(const Mesh& control, double curveEdgeCount, int wanted,
+                    double maxRefinedVertices) {
+  int levels = 0;
+  while (levels < wanted && estimateFor(control, curveEdgeCount, levels + 1) <= maxRefinedVertices)
+    ++levels;
+  return levels;
 }
 
 }  // namespace
@@ -370,11 +397,8 @@ double estimatedRefinedVertices(const Mesh& control, int levels) {
 
 int levelsWithin(const Mesh& control, int wanted, double maxRefinedVertices) {
   if (wanted <= 0) return 0;
-  const double curves = static_cast<double>(curveEdges(control).size());
-  int levels = 0;
-  while (levels < wanted && estimateFor(control, curves, levels + 1) <= maxRefinedVertices)
-    ++levels;
-  return levels;
+  return levelsWithinFor(control, static_cast<double>(curveEdges(control).size()), wanted,
+                         maxRefinedVertices);
 }
 
 SubdivisionStencil::SubdivisionStencil(const Mesh& control, const SubdivisionOptions& options)
@@ -388,7 +412,8 @@ SubdivisionStencil::SubdivisionStencil(const Mesh& control, const SubdivisionOpt
   std::vector<std::array<Index, 2>> curves = curveEdges(control);
   const double estimate = estimateFor(control, static_cast<double>(curves.size()), levels_);
   if (levels_ > 0 && estimate > options.maxRefinedVertices) {
-    const int fit = levelsWithin(control, levels_, options.maxRefinedVertices);
+    const int fit = levelsWithinFor(control, static_cast<double>(curves.size()), levels_,
+                                    options.maxRefinedVertices);
     char text[320];
     std::snprintf(text, sizeof text,
                   "levels: %d levels of this %lld-vertex mesh would make about %.3g million "
@@ -616,12 +641,8 @@ namespace {
 void weldZeroLengthEdges(Points& positions, std::vector<std::vector<Index>>& faces,
                          std::vector<std::array<Index, 2>>& edges) {
   const Index n = static_cast<Index>(positions.rows());
-  std::vector<Index> parent(static_cast<size_t>(n));
-  for (Index v = 0; v < n; ++v) parent[v] = v;
-  auto find = [&](Index v) {
-    while (parent[v] != v) v = parent[v] = parent[parent[v]];
-    return v;
-  };
+  UnionFind sets(n);
+  auto find = [&](Index v) { return sets.find(v); };
   auto coincide = [&](Index a, Index b) {
     return a != b && (positions.row(a) - positions.row(b)).squaredNorm() == 0.0;
   };
@@ -631,11 +652,7 @@ void weldZeroLengthEdges(Points& positions, std::vector<std::vector<Index>>& fac
   for (bool changed = true; changed;) {
     changed = false;
     auto unite = [&](Index a, Index b) {
-      a = find(a);
-      b = find(b);
-      if (a == b) return;
-      parent[std::max(a, b)] = std::min(a, b);
-      changed = merged = true;
+      if (sets.unite(a, b)) changed = merged = true;
     };
     for (const auto& face : faces)
       for (size_t k = 0; k < face.size(); ++k)
